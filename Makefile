@@ -1,0 +1,35 @@
+# sovd-gateway — the two commands an operator needs are `make run` and `make test`.
+PYTHON ?= python3.11
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+BIND   ?= 127.0.0.1:8080
+
+.PHONY: install run test lint bench reliability clean
+
+$(STAMP): pyproject.toml
+	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "need $(PYTHON) on PATH"; exit 1; }
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+install: $(STAMP)
+
+run: $(STAMP)
+	$(BIN)/python -m demo.run --bind $(BIND)
+
+test: $(STAMP)
+	$(BIN)/python -m pytest $(PYTEST_ARGS)
+
+lint: $(STAMP)
+	$(BIN)/ruff check app rosworker ipc demo tests bench
+
+bench: $(STAMP)
+	$(BIN)/python -m bench.run
+
+reliability: $(STAMP)
+	SOVD_RELIABILITY=long $(BIN)/python -m pytest tests/reliability -s -p no:randomly
+
+clean:
+	rm -rf $(VENV) build *.egg-info .pytest_cache

@@ -1,0 +1,233 @@
+"""Every setting of the gateway: one table, three sources, one validation.
+
+A setting comes from (lowest to highest precedence) its default, the TOML
+config file (``--config FILE`` or ``SOVD_CONFIG``), the environment
+(``SOVD_<NAME>``) and the command line (``--name-with-dashes``).  Values
+outside their range are refused with a message that names the setting, the
+source and the allowed range; nothing is silently clamped.
+
+The supervisor resolves the settings once and hands them to its children as
+``SOVD_*`` environment variables, so the ROS worker and every HTTP worker see
+exactly the same values.
+
+This module imports nothing heavy: the ROS worker, the HTTP workers and the
+probe all import it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import tempfile
+import tomllib
+from dataclasses import dataclass
+from typing import Any
+
+ENV_PREFIX = "SOVD_"
+
+
+class ConfigError(ValueError):
+    """A setting has a value that cannot be used; the message says which and why."""
+
+
+@dataclass(frozen=True)
+class Setting:
+    name: str
+    kind: type
+    default: Any
+    help: str
+    low: float | None = None
+    high: float | None = None
+    zero_means: str | None = None  # e.g. "off": 0 is allowed below `low`
+    choices: tuple[str, ...] | None = None
+
+    @property
+    def env(self) -> str:
+        return ENV_PREFIX + self.name.upper()
+
+    @property
+    def flag(self) -> str:
+        return "--" + self.name.replace("_", "-")
+
+    def range_text(self) -> str:
+        if self.choices:
+            return "one of " + ", ".join(self.choices)
+        if self.low is None:
+            return ""
+        text = f"{self.low:g}–{self.high:g}"
+        if self.zero_means:
+            text += f", or 0 = {self.zero_means}"
+        return text
+
+    def parse(self, raw: Any, source: str) -> Any:
+        where = f"{self.name} (from {source})"
+        try:
+            value = _coerce(self.kind, raw)
+        except (TypeError, ValueError):
+            raise ConfigError(
+                f"{where}: {raw!r} is not a valid {self.kind.__name__}"
+                + (f" (allowed: {self.range_text()})" if self.range_text() else "")
+            ) from None
+        if self.choices and value not in self.choices:
+            raise ConfigError(f"{where}: {value!r} is not {self.range_text()}")
+        if self.low is not None and not (self.zero_means and value == 0):
+            if not (self.low <= value <= self.high):
+                raise ConfigError(f"{where}: {value!r} is out of range (allowed: {self.range_text()})")
+        return value
+
+
+def _coerce(kind: type, raw: Any) -> Any:
+    if kind is bool:
+        if isinstance(raw, bool):
+            return raw
+        text = str(raw).strip().lower()
+        if text in ("1", "true", "yes", "on"):
+            return True
+        if text in ("0", "false", "no", "off", ""):
+            return False
+        raise ValueError(raw)
+    if kind is int:
+        if isinstance(raw, bool) or (isinstance(raw, float) and not raw.is_integer()):
+            raise ValueError(raw)
+        return int(str(raw).strip()) if isinstance(raw, str) else int(raw)
+    if kind is float:
+        if isinstance(raw, bool):
+            raise ValueError(raw)
+        value = float(raw)
+        if value != value or value in (float("inf"), float("-inf")):
+            raise ValueError(raw)
+        return value
+    return str(raw)
+
+
+SETTINGS: tuple[Setting, ...] = (
+    # --- ROS worker (architecture.md's table) ---
+    Setting("sample_timeout", float, 1.0, "seconds a cold read waits for the first message", 0.1, 30),
+    Setting("max_pool_size", int, 256, "LRU cap on pooled topic subscriptions", 1, 4096),
+    Setting("cold_wait_cap", int, 4, "callers allowed to wait on cold topics at once", 1, 4096, "no cap"),
+    Setting("idle_safety_net", float, 900.0, "seconds an unread pooled topic is kept", 1, 604800, "off"),
+    Setting("idle_sweep_tick", float, 60.0, "seconds between idle sweeps", 0.05, 3600),
+    Setting("max_queue_depth", int, 256, "pending ROS-worker commands before backpressure", 1, 65536),
+    Setting("watchdog_threshold", int, 5000, "ms a ROS task may run before the worker is degraded", 50, 600000),
+    Setting("graph_poll_tick", int, 100, "ms between checks of the ROS graph", 10, 10000),
+    Setting("max_publishers", int, 64, "LRU cap on pooled publishers (PUT)", 1, 1024),
+    Setting("gateway_name", str, "sovd_gateway", "ROS node name prefix; the worker's node is <name>_sub"),
+    # --- HTTP side ---
+    Setting("bind", str, "127.0.0.1:8080", "HOST:PORT the HTTP server listens on"),
+    Setting("workers", int, 2, "gunicorn worker processes", 1, 64),
+    Setting("threads", int, 8, "threads per gunicorn worker", 1, 256),
+    Setting("allow_publish", bool, False, "allow PUT .../data/... to publish to ROS topics"),
+    Setting("api_token", str, "", "bearer token required for PUT (empty: none)"),
+    Setting("max_body_bytes", int, 1048576, "largest accepted request body in bytes", 1024, 67108864),
+    Setting("ipc_timeout", float, 2.0, "seconds an HTTP worker waits for a non-sample ROS-worker reply", 0.1, 60),
+    Setting("forwarded_allow_ips", str, "127.0.0.1,::1", "proxies trusted for X-Forwarded-* headers"),
+    # --- service ---
+    Setting("runtime_dir", str, "", "directory for the IPC socket and lock (default: see README)"),
+    Setting("log_level", str, "info", "log level", choices=("debug", "info", "warning", "error")),
+    Setting("watchdog_grace", float, 10.0, "seconds a hung ROS worker is tolerated before it is killed", 0.5, 600),
+    Setting("restart_limit", int, 5, "ROS worker restarts allowed within restart_window", 1, 1000),
+    Setting("restart_window", float, 60.0, "seconds over which restarts are counted", 1, 86400),
+    Setting("shutdown_grace", float, 5.0, "seconds in-flight HTTP requests get at shutdown", 0.5, 120),
+    Setting("debug_commands", bool, False, "enable test-only IPC commands (never in production)"),
+)
+
+BY_NAME = {s.name: s for s in SETTINGS}
+_NODE_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]{0,200}$")
+_BIND = re.compile(r"^(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
+
+
+class Config(dict):
+    """Resolved settings; attribute access for convenience (``cfg.sample_timeout``)."""
+
+    def __getattr__(self, name: str) -> Any:
+        try:
+            return self[name]
+        except KeyError:
+            raise AttributeError(name) from None
+
+    def to_env(self) -> dict[str, str]:
+        """The settings as ``SOVD_*`` variables, for a child process."""
+        out = {}
+        for s in SETTINGS:
+            value = self[s.name]
+            out[s.env] = ("1" if value else "0") if s.kind is bool else str(value)
+        return out
+
+
+def add_arguments(parser: argparse.ArgumentParser, names: tuple[str, ...] | None = None) -> None:
+    """Add ``--config`` and one flag per setting (all, or those named)."""
+    parser.add_argument("--config", metavar="FILE", help="TOML config file (settings as top-level keys)")
+    for s in SETTINGS:
+        if names is not None and s.name not in names:
+            continue
+        if s.kind is bool:
+            parser.add_argument(s.flag, dest=s.name, action="store_const", const=True, default=None, help=s.help)
+        else:
+            rng = s.range_text()
+            parser.add_argument(
+                s.flag, dest=s.name, default=None, metavar=s.kind.__name__.upper(),
+                help=f"{s.help} (default {s.default!r}{'; ' + rng if rng else ''})",
+            )
+
+
+def load(args: argparse.Namespace | None = None, environ: dict[str, str] | None = None) -> Config:
+    """Resolve every setting: default < config file < environment < flags."""
+    environ = os.environ if environ is None else environ
+    flags = vars(args) if args is not None else {}
+    values: dict[str, Any] = {s.name: s.default for s in SETTINGS}
+
+    path = flags.get("config") or environ.get(ENV_PREFIX + "CONFIG")
+    if path:
+        try:
+            with open(path, "rb") as fh:
+                data = tomllib.load(fh)
+        except OSError as exc:
+            raise ConfigError(f"config file {path}: {exc.strerror}") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"config file {path}: not valid TOML ({exc})") from None
+        data = data.get("sovd_gateway", data)
+        for key, raw in data.items():
+            setting = BY_NAME.get(key)
+            if setting is None:
+                raise ConfigError(f"config file {path}: unknown setting {key!r}")
+            values[key] = setting.parse(raw, f"config file {path}")
+
+    for s in SETTINGS:
+        if s.env in environ:
+            values[s.name] = s.parse(environ[s.env], f"environment {s.env}")
+        if flags.get(s.name) is not None:
+            values[s.name] = s.parse(flags[s.name], f"flag {s.flag}")
+
+    if not _NODE_NAME.match(values["gateway_name"]):
+        raise ConfigError(
+            f"gateway_name: {values['gateway_name']!r} is not a valid ROS node name "
+            "(a letter, then letters, digits or _)"
+        )
+    m = _BIND.match(values["bind"])
+    if not m or not (0 < int(m.group(2)) < 65536):
+        raise ConfigError(f"bind: {values['bind']!r} is not HOST:PORT with a port of 1–65535")
+    if not values["runtime_dir"]:
+        values["runtime_dir"] = default_runtime_dir(environ)
+    if values["api_token"] and len(values["api_token"]) < 16:
+        raise ConfigError("api_token: use at least 16 characters")
+    return Config(values)
+
+
+def default_runtime_dir(environ: dict[str, str] | os._Environ) -> str:
+    """``$RUNTIME_DIRECTORY`` (systemd), else a private dir under ``$XDG_RUNTIME_DIR`` or the temp dir."""
+    if environ.get("RUNTIME_DIRECTORY"):
+        return environ["RUNTIME_DIRECTORY"].split(":")[0]
+    base = environ.get("XDG_RUNTIME_DIR") or tempfile.gettempdir()
+    return os.path.join(base, f"sovd-gateway-{os.getuid()}")
+
+
+def ensure_runtime_dir(path: str) -> str:
+    """Create the runtime directory 0700 and refuse one that others can enter."""
+    os.makedirs(path, mode=0o700, exist_ok=True)
+    st = os.stat(path)
+    if st.st_uid != os.getuid():
+        raise ConfigError(f"runtime_dir {path}: owned by uid {st.st_uid}, not by this user ({os.getuid()})")
+    if st.st_mode & 0o077:
+        os.chmod(path, 0o700)
+    return path

@@ -1,0 +1,1 @@
+"""SOVD REST routes, one blueprint per resource."""

@@ -1,0 +1,1 @@
+"""A small demo robot for `make run` and the README examples (not part of the gateway)."""

@@ -1,0 +1,122 @@
+"""The fork-safe client of the ROS worker, used by HTTP workers, the supervisor and the probe.
+
+Before fork / after fork: constructing a :class:`RosWorkerClient` touches no
+ZeroMQ state.  The context is made lazily in the process that first calls
+:meth:`call`, and each thread gets its own DEALER socket.  A process that
+finds a context made by another pid (it was forked) makes a new one.
+
+Every call has a deadline.  DEALER sockets do not get stuck after a timeout
+the way REQ sockets do; a late reply is recognised by its id and dropped.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import threading
+import time
+from typing import Any
+
+import zmq
+
+from . import protocol
+from .errors import IpcError
+
+# How long a send waits for the connection to the ROS worker's socket to exist.
+CONNECT_WAIT = 0.25
+
+
+class RosWorkerClient:
+    def __init__(self, endpoint: str):
+        self.endpoint = endpoint
+        self._pid: int | None = None
+        self._ctx: zmq.Context | None = None
+        self._local = threading.local()
+        self._lock = threading.Lock()
+        self._ids = itertools.count(1)
+
+    @classmethod
+    def for_runtime_dir(cls, runtime_dir: str) -> RosWorkerClient:
+        return cls(protocol.endpoint(runtime_dir))
+
+    def _socket(self) -> zmq.Socket:
+        pid = os.getpid()
+        if self._pid != pid:
+            with self._lock:
+                if self._pid != pid:
+                    # Forked (or first use): never touch the parent's context.
+                    self._ctx = zmq.Context()
+                    self._local = threading.local()
+                    self._pid = pid
+        sock = getattr(self._local, "sock", None)
+        if sock is None:
+            sock = self._ctx.socket(zmq.DEALER)
+            sock.setsockopt(zmq.LINGER, 0)
+            sock.setsockopt(zmq.IMMEDIATE, 1)       # no queueing while the worker is down
+            sock.setsockopt(zmq.SNDHWM, 64)
+            sock.setsockopt(zmq.RCVHWM, 256)
+            sock.setsockopt(zmq.MAXMSGSIZE, protocol.MAX_REPLY_FRAME)
+            sock.setsockopt(zmq.RECONNECT_IVL, 50)
+            sock.setsockopt(zmq.RECONNECT_IVL_MAX, 500)
+            sock.connect(self.endpoint)
+            self._local.sock = sock
+        return sock
+
+    def _reset_socket(self) -> None:
+        sock = getattr(self._local, "sock", None)
+        if sock is not None:
+            sock.close(linger=0)
+            self._local.sock = None
+
+    def call(self, cmd: str, args: dict[str, Any] | None = None, timeout: float = 2.0,
+             connect_wait: float = CONNECT_WAIT) -> dict[str, Any]:
+        """Send one command and wait up to ``timeout`` seconds for its reply.
+
+        Returns the ``result`` map; raises :class:`IpcError` with code
+        ``unavailable`` (no ROS worker connected), ``deadline-exceeded`` (no
+        answer in time) or whatever the ROS worker answered.
+        """
+        deadline = time.monotonic() + timeout
+        sock = self._socket()
+        rid = next(self._ids)
+        frame = protocol.pack({
+            "v": protocol.VERSION, "id": rid, "cmd": cmd, "args": args or {},
+            "deadline_ms": max(1, int(timeout * 1000)),
+        })
+        try:
+            sock.send(frame, zmq.NOBLOCK)
+        except zmq.Again:
+            wait = min(connect_wait, max(0.0, deadline - time.monotonic()))
+            if not sock.poll(int(wait * 1000), zmq.POLLOUT):
+                raise IpcError("unavailable", "The ROS worker is not running; retry shortly") from None
+            try:
+                sock.send(frame, zmq.NOBLOCK)
+            except zmq.Again:
+                raise IpcError("unavailable", "The ROS worker is not running; retry shortly") from None
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0 or not sock.poll(max(1, int(remaining * 1000)), zmq.POLLIN):
+                if sock.poll(0, zmq.POLLOUT) == 0:
+                    # The peer went away while we waited: say so rather than "timeout".
+                    raise IpcError("unavailable", "The ROS worker went away; retry shortly")
+                raise IpcError(
+                    "deadline-exceeded",
+                    f"The ROS worker did not answer {cmd!r} within {timeout:g} s",
+                    {"command": cmd, "timeout_s": timeout},
+                )
+            try:
+                reply = protocol.unpack(sock.recv(zmq.NOBLOCK), protocol.MAX_REPLY_FRAME)
+            except zmq.Again:
+                continue
+            except ValueError:
+                self._reset_socket()
+                raise IpcError("internal", "Malformed reply from the ROS worker") from None
+            if reply.get("id") != rid:
+                continue  # a late reply to an earlier, timed-out call
+            if reply.get("ok") is True:
+                result = reply.get("result")
+                return result if isinstance(result, dict) else {}
+            raise IpcError.from_wire(reply.get("error"))
+
+    def close(self) -> None:
+        self._reset_socket()

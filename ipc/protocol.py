@@ -1,0 +1,58 @@
+"""Protocol constants and framing; the messages themselves are in PROTOCOL.md.
+
+One request → one reply, each a single ZeroMQ frame of msgpack:
+
+    request: {"v": 1, "id": int, "cmd": str, "args": map, "deadline_ms": int}
+    reply:   {"v": 1, "id": int, "ok": true,  "result": map}
+           | {"v": 1, "id": int, "ok": false, "error": {code, message, status, params}}
+
+``deadline_ms`` is the caller's remaining budget when it sent the request;
+the ROS worker does not start work whose budget has run out, and a cold
+sample never waits past it.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import msgpack
+
+VERSION = 1
+SOCKET_NAME = "rosworker.sock"
+LOCK_NAME = "rosworker.lock"
+MAX_FRAME = 4 * 1024 * 1024          # requests larger than this are dropped unread
+MAX_REPLY_FRAME = 256 * 1024 * 1024  # a reply may carry a large sample
+MAX_TOPIC_LEN = 1024
+
+COMMANDS = (
+    "ping", "stats", "graph", "sample", "subscribe", "evict", "publish", "type_info", "pool",
+    "debug_sleep",
+)
+# Commands the IPC thread answers itself, without queueing behind ROS work.
+IMMEDIATE = ("ping", "stats")
+# Commands that may be sent again after a timeout (publish is not).
+IDEMPOTENT = frozenset(c for c in COMMANDS if c != "publish")
+
+
+def endpoint(runtime_dir: str) -> str:
+    return "ipc://" + os.path.join(runtime_dir, SOCKET_NAME)
+
+
+def pack(message: dict[str, Any]) -> bytes:
+    return msgpack.packb(message, use_bin_type=True)
+
+
+def unpack(frame: bytes, max_size: int = MAX_FRAME) -> Any:
+    """Decode one frame; raises ValueError on anything that is not a msgpack map."""
+    if len(frame) > max_size:
+        raise ValueError(f"frame of {len(frame)} bytes exceeds {max_size}")
+    try:
+        obj = msgpack.unpackb(
+            frame, raw=False, strict_map_key=True, max_buffer_size=max_size,
+        )
+    except Exception as exc:  # msgpack raises several unrelated types
+        raise ValueError(f"not a msgpack frame: {type(exc).__name__}") from None
+    if not isinstance(obj, dict):
+        raise ValueError("frame is not a map")
+    return obj

@@ -1,0 +1,60 @@
+"""Start the gateway the way an operator does: the ``sovd-gateway`` console script."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+import requests
+
+from .procs import Proc, free_port, poll_until
+
+BIN = Path(sys.executable).parent
+
+
+class Gateway(Proc):
+    """``sovd-gateway`` on a free loopback port with a private runtime dir.
+
+    Waits until ``/api/v1/health`` answers with ``worker_alive: true``.
+    """
+
+    def __init__(self, *args: str, env: dict | None = None, timeout: float = 60.0,
+                 runtime_dir: str | None = None):
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        self.api = self.url + "/api/v1"
+        self._own_dir = runtime_dir is None
+        self.runtime_dir = runtime_dir or tempfile.mkdtemp(prefix="sovd-gw-")
+        os.chmod(self.runtime_dir, 0o700)
+        argv = [str(BIN / "sovd-gateway"), "--bind", f"127.0.0.1:{self.port}",
+                "--runtime-dir", self.runtime_dir, *args]
+        super().__init__(argv, env=env, name="sovd-gateway")
+        try:
+            poll_until(self._healthy, timeout, interval=0.1, message="gateway health")
+        except AssertionError:
+            self.stop()
+            raise AssertionError("gateway did not become healthy; output:\n" + "\n".join(self.output[-60:]))
+
+    def _healthy(self) -> bool:
+        if self.proc.poll() is not None:
+            raise AssertionError(f"sovd-gateway exited with {self.proc.returncode}:\n"
+                                 + "\n".join(self.output[-60:]))
+        r = requests.get(self.api + "/health", timeout=2)
+        return r.status_code == 200 and r.json()["x-medkit-subscription-executor"]["worker_alive"]
+
+    def get(self, path: str, **kw) -> requests.Response:
+        kw.setdefault("timeout", 15)
+        return requests.get(self.api + path, **kw)
+
+    def put(self, path: str, **kw) -> requests.Response:
+        kw.setdefault("timeout", 15)
+        return requests.put(self.api + path, **kw)
+
+    def stop(self, timeout: float = 15.0) -> int:
+        code = super().stop(timeout)
+        if self._own_dir:
+            shutil.rmtree(self.runtime_dir, ignore_errors=True)
+        return code

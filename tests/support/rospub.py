@@ -1,0 +1,122 @@
+"""A real ROS 2 node in its own process, for tests: publishes and/or subscribes.
+
+Run as ``python -m tests.support.rospub '<json spec>'``::
+
+    {"node": "temp_sensor", "namespace": "/powertrain/engine",
+     "publish": [{"topic": "temperature", "type": "sensor_msgs/msg/Temperature",
+                  "rate": 10, "value": {"temperature": 93.5}, "counter": "variance",
+                  "reliability": "reliable", "durability": "volatile", "depth": 10,
+                  "once": false}],
+     "subscribe": [{"topic": "cmd", "type": "std_msgs/msg/Float32", "echo": true}]}
+
+Prints ``READY`` once every entity exists; with ``echo``, prints each received
+message as one JSON line ``{"topic":..., "data": {...}}``.  ``counter`` names a
+numeric field that is incremented on every publish so tests can tell samples
+apart.  SIGTERM destroys the node cleanly so that it leaves the graph at once.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import signal
+import sys
+import threading
+
+
+def _load(type_name: str):
+    pkg, _, name = type_name.split("/")
+    return getattr(importlib.import_module(f"{pkg}.msg"), name)
+
+
+def _assign(msg, values: dict) -> None:
+    for key, value in values.items():
+        current = getattr(msg, key)
+        if isinstance(value, dict):
+            _assign(current, value)
+        else:
+            setattr(msg, key, value)
+
+
+def _plain(msg):
+    if hasattr(msg, "get_fields_and_field_types"):
+        return {k: _plain(getattr(msg, k)) for k in msg.get_fields_and_field_types()}
+    if isinstance(msg, (list, tuple)):
+        return [_plain(v) for v in msg]
+    if hasattr(msg, "tolist"):
+        return msg.tolist()
+    if isinstance(msg, bytes):
+        return list(msg)
+    return msg
+
+
+def _set_path(msg, path: str, value) -> None:
+    *parents, leaf = path.split(".")
+    for p in parents:
+        msg = getattr(msg, p)
+    current = getattr(msg, leaf)
+    setattr(msg, leaf, type(current)(value))
+
+
+def main() -> None:
+    spec = json.loads(sys.argv[1])
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+
+    rclpy.init()
+    node = Node(spec["node"], namespace=spec.get("namespace", "/"))
+    for item in spec.get("publish", []):
+        cls = _load(item["type"])
+        qos = QoSProfile(
+            depth=item.get("depth", 10),
+            reliability=(ReliabilityPolicy.BEST_EFFORT if item.get("reliability") == "best_effort"
+                         else ReliabilityPolicy.RELIABLE),
+            durability=(DurabilityPolicy.TRANSIENT_LOCAL if item.get("durability") == "transient_local"
+                        else DurabilityPolicy.VOLATILE),
+        )
+        pub = node.create_publisher(cls, item["topic"], qos)
+        msg = cls()
+        _assign(msg, item.get("value", {}))
+        state = {"n": 0}
+
+        def tick(pub=pub, msg=msg, item=item, state=state):
+            state["n"] += 1
+            if item.get("counter"):
+                _set_path(msg, item["counter"], state["n"])
+            pub.publish(msg)
+
+        if item.get("once") or not item.get("rate"):
+            tick()
+        else:
+            node.create_timer(1.0 / float(item["rate"]), tick)
+
+    for item in spec.get("subscribe", []):
+        cls = _load(item["type"])
+        topic = node.resolve_topic_name(item["topic"])
+
+        def on_msg(msg, topic=topic, echo=item.get("echo", False)):
+            if echo:
+                print(json.dumps({"topic": topic, "data": _plain(msg)}), flush=True)
+
+        node.create_subscription(cls, item["topic"], on_msg, 10)
+
+    print("READY", flush=True)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=0.05)
+    finally:
+        executor.remove_node(node)
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()
