@@ -1,0 +1,222 @@
+"""The ROS worker's IPC thread: the ROUTER socket, the lock, and the front of the queue.
+
+This thread never touches rclpy.  It
+
+- holds an exclusive ``flock`` on ``<runtime_dir>/rosworker.lock`` before it
+  binds, so a second worker on the same directory cannot steal the socket;
+- decodes requests, drops frames that are not requests (counted), answers
+  malformed ones with an error, answers ``ping``/``stats`` itself at once,
+  and queues everything else for the ROS thread (``backpressure`` when full);
+- forwards the ROS thread's replies (which arrive on the inproc pair) to the
+  clients;
+- checks the watchdog every ``WATCHDOG_CHECK`` seconds.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import logging
+import os
+import threading
+import time
+from typing import Any
+
+import zmq
+
+from . import protocol
+from .errors import IpcError
+
+log = logging.getLogger("sovd.rosworker.ipc")
+
+WATCHDOG_CHECK = 0.05
+
+
+class LockHeld(RuntimeError):
+    """Another ROS worker owns this runtime directory."""
+
+
+class RuntimeLock:
+    def __init__(self, runtime_dir: str):
+        self.path = os.path.join(runtime_dir, protocol.LOCK_NAME)
+        self._fh = None
+
+    def acquire(self) -> None:
+        fh = open(self.path, "a+")
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            fh.seek(0)
+            holder = fh.read().strip() or "another process"
+            fh.close()
+            raise LockHeld(f"another ROS worker (pid {holder}) already serves {os.path.dirname(self.path)}; "
+                           "refusing to take its socket") from None
+        fh.seek(0)
+        fh.truncate()
+        fh.write(str(os.getpid()))
+        fh.flush()
+        os.chmod(self.path, 0o600)
+        self._fh = fh
+
+    def release(self) -> None:
+        if self._fh is not None:
+            self._fh.close()
+            self._fh = None
+
+
+class IpcServer:
+    """Runs on its own thread; see the module docstring."""
+
+    def __init__(self, zctx: zmq.Context, runtime_dir: str, executor, stats, info: dict[str, Any]):
+        self.zctx = zctx
+        self.runtime_dir = runtime_dir
+        self.executor = executor
+        self.stats = stats
+        self.info = info
+        self.started = time.monotonic()
+        self._closing = threading.Event()   # stop accepting work; answer "shutdown"
+        self._finished = threading.Event()  # the ROS thread is done: flush and exit
+        self._ready = threading.Event()
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="ipc", daemon=True)
+
+    def start(self, timeout: float = 5.0) -> None:
+        self._thread.start()
+        if not self._ready.wait(timeout):
+            raise RuntimeError("the IPC thread did not start in time")
+        if self._error is not None:
+            raise self._error
+
+    def close_for_work(self) -> None:
+        self._closing.set()
+
+    def finish(self, timeout: float = 3.0) -> None:
+        self._closing.set()
+        self._finished.set()
+        self._thread.join(timeout)
+
+    # ---- the thread ---------------------------------------------------------------------
+    def _bind(self) -> tuple[zmq.Socket, zmq.Socket]:
+        poke = self.executor.bind_poke()
+        router = self.zctx.socket(zmq.ROUTER)
+        router.setsockopt(zmq.LINGER, 500)
+        router.setsockopt(zmq.MAXMSGSIZE, protocol.MAX_FRAME)
+        router.setsockopt(zmq.RCVHWM, 10000)
+        router.setsockopt(zmq.SNDHWM, 10000)
+        path = os.path.join(self.runtime_dir, protocol.SOCKET_NAME)
+        if os.path.exists(path):
+            os.unlink(path)  # stale: we hold the lock, so nobody else serves it
+        old_umask = os.umask(0o177)
+        try:
+            router.bind(protocol.endpoint(self.runtime_dir))
+        finally:
+            os.umask(old_umask)
+        os.chmod(path, 0o600)
+        return router, poke
+
+    def _run(self) -> None:
+        try:
+            router, poke = self._bind()
+        except BaseException as exc:
+            self._error = exc
+            self._ready.set()
+            return
+        self._ready.set()
+        poller = zmq.Poller()
+        poller.register(router, zmq.POLLIN)
+        poller.register(poke, zmq.POLLIN)
+        try:
+            while True:
+                events = dict(poller.poll(int(WATCHDOG_CHECK * 1000)))
+                if poke in events:
+                    self._forward_replies(poke, router)
+                if router in events:
+                    self._receive(router)
+                self.stats.check_watchdog()
+                if self._finished.is_set():
+                    self._forward_replies(poke, router)
+                    break
+        finally:
+            router.close(linger=500)
+            poke.close(linger=0)
+            path = os.path.join(self.runtime_dir, protocol.SOCKET_NAME)
+            try:
+                os.unlink(path)
+            except OSError:
+                pass
+
+    def _forward_replies(self, poke: zmq.Socket, router: zmq.Socket) -> None:
+        for _ in range(10000):
+            try:
+                frames = poke.recv_multipart(zmq.NOBLOCK, copy=False)
+            except zmq.Again:
+                return
+            if len(frames) == 2:
+                try:
+                    router.send_multipart(frames, zmq.NOBLOCK, copy=False)
+                except zmq.ZMQError:
+                    pass  # the client went away; its reply has no one to go to
+
+    def _receive(self, router: zmq.Socket) -> None:
+        for _ in range(1000):
+            try:
+                frames = router.recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            if len(frames) != 2:
+                self.stats.ipc_dropped_frames += 1
+                continue
+            identity, frame = frames
+            try:
+                request = protocol.unpack(frame)
+            except ValueError as exc:
+                self.stats.ipc_dropped_frames += 1
+                log.debug("dropped a frame: %s", exc)
+                continue
+            rid = request.get("id")
+            if isinstance(rid, bool) or not isinstance(rid, int):
+                self.stats.ipc_dropped_frames += 1
+                continue
+            try:
+                self._dispatch(router, identity, rid, request)
+            except IpcError as exc:
+                self._reply(router, identity, rid, error=exc)
+
+    def _dispatch(self, router: zmq.Socket, identity: bytes, rid: int, request: dict) -> None:
+        if request.get("v") != protocol.VERSION:
+            raise IpcError("unsupported-version",
+                           f"protocol version {request.get('v')!r} is not supported (this worker speaks "
+                           f"{protocol.VERSION})", {"supported": protocol.VERSION})
+        cmd = request.get("cmd")
+        args = request.get("args", {})
+        budget = request.get("deadline_ms", 5000)
+        if not isinstance(cmd, str) or cmd not in protocol.COMMANDS:
+            raise IpcError("unknown-command", f"unknown command {str(cmd)[:64]!r}")
+        if not isinstance(args, dict):
+            raise IpcError("bad-request", "args: expected a map")
+        if isinstance(budget, bool) or not isinstance(budget, int) or not (0 < budget <= 600000):
+            raise IpcError("bad-request", "deadline_ms: expected an integer from 1 to 600000")
+        if cmd == "ping":
+            self._reply(router, identity, rid, result={
+                **self.info, "pid": os.getpid(), "uptime_s": round(time.monotonic() - self.started, 3),
+                "protocol": protocol.VERSION})
+            return
+        if cmd == "stats":
+            self._reply(router, identity, rid, result={**self.stats.snapshot(), "pid": os.getpid()})
+            return
+        if self._closing.is_set():
+            raise IpcError("shutdown", "The gateway is shutting down")
+        if not self.executor.submit(cmd, args, identity, rid, time.monotonic() + budget / 1000):
+            raise IpcError("backpressure",
+                           f"The ROS worker's queue is full ({self.executor.max_queue_depth} pending); "
+                           "retry shortly", {"max_queue_depth": self.executor.max_queue_depth})
+
+    def _reply(self, router: zmq.Socket, identity: bytes, rid: int, result: dict | None = None,
+               error: IpcError | None = None) -> None:
+        if error is not None:
+            message = {"v": protocol.VERSION, "id": rid, "ok": False, "error": error.to_wire()}
+        else:
+            message = {"v": protocol.VERSION, "id": rid, "ok": True, "result": result}
+        try:
+            router.send_multipart([identity, protocol.pack(message)], zmq.NOBLOCK)
+        except zmq.ZMQError:
+            pass

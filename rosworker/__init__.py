@@ -1,0 +1,1 @@
+"""The ROS worker: the only process of the gateway that uses rclpy."""

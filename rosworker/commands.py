@@ -1,0 +1,101 @@
+"""The queued commands of the IPC protocol, run on the ROS thread.
+
+Each handler validates its ``args`` (nothing a client sends may raise
+anything but :class:`IpcError`), then answers with ``task.reply`` now or
+later (a cold sample).  The message shapes are in ``ipc/PROTOCOL.md``.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from ipc.errors import IpcError
+from ipc.topics import InvalidTopic, normalize_topic
+
+from . import convert
+from .executor import RosExecutor, Task
+from .graph import GraphMonitor
+from .pool import BYTES_MODES, TopicPool
+from .publishers import PublisherPool
+
+
+def _topic(args: dict) -> str:
+    try:
+        return normalize_topic(args.get("topic"))
+    except InvalidTopic as exc:
+        raise IpcError("invalid-topic", str(exc), {"topic": str(args.get("topic"))[:300]}) from None
+
+
+def _number(args: dict, name: str, default: float, low: float, high: float) -> float:
+    value = args.get(name, default)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (low <= value <= high):
+        raise IpcError("bad-request", f"{name}: expected a number from {low:g} to {high:g}")
+    return float(value)
+
+
+class Commands:
+    def __init__(self, executor: RosExecutor, pool: TopicPool, graph: GraphMonitor,
+                 publishers: PublisherPool, *, sample_timeout: float, debug: bool):
+        self.pool = pool
+        self.graph = graph
+        self.publishers = publishers
+        self.sample_timeout = sample_timeout
+        handlers = {
+            "sample": self.sample, "subscribe": self.subscribe, "evict": self.evict,
+            "graph": self.graph_cmd, "publish": self.publish, "type_info": self.type_info,
+            "pool": self.pool_cmd,
+        }
+        if debug:
+            handlers["debug_sleep"] = self.debug_sleep
+        executor.handlers.update(handlers)
+
+    def sample(self, task: Task) -> None:
+        topic = _topic(task.args)
+        timeout = _number(task.args, "timeout_ms", self.sample_timeout * 1000, 0, 30000) / 1000
+        mode = task.args.get("bytes", "array")
+        if mode not in BYTES_MODES:
+            raise IpcError("bad-request", "bytes: expected 'array' or 'base64'")
+        self.pool.sample(task, topic, timeout, mode)
+
+    def subscribe(self, task: Task) -> None:
+        task.reply(self.pool.subscribe(_topic(task.args)))
+
+    def evict(self, task: Task) -> None:
+        topic = _topic(task.args)
+        task.reply({"topic": topic, "evicted": self.pool.evict_topic(topic)})
+
+    def pool_cmd(self, task: Task) -> None:
+        task.reply({"topics": list(self.pool.entries)})
+
+    def graph_cmd(self, task: Task) -> None:
+        since = task.args.get("since")
+        if since is not None and (isinstance(since, bool) or not isinstance(since, int)):
+            raise IpcError("bad-request", "since: expected an integer generation")
+        task.reply(self.graph.snapshot(since))
+
+    def publish(self, task: Task) -> None:
+        topic = _topic(task.args)
+        type_name = task.args.get("type")
+        data = task.args.get("data")
+        if not isinstance(type_name, str):
+            raise IpcError("bad-request", "type: missing required field")
+        if not isinstance(data, dict):
+            raise IpcError("bad-request", "data: must be an object")
+        self.publishers.publish(task, topic, type_name, data)
+
+    def type_info(self, task: Task) -> None:
+        type_name = task.args.get("type")
+        if not isinstance(type_name, str):
+            raise IpcError("bad-request", "type: missing required field")
+        try:
+            cls = convert.load_type(type_name)
+            info: dict[str, Any] = {"type": type_name, "schema": convert.schema(cls),
+                                    "default_value": convert.default_value(cls)}
+        except convert.ConversionError as exc:
+            raise IpcError(exc.code, exc.message, {"type": type_name[:300]}) from None
+        task.reply(info)
+
+    def debug_sleep(self, task: Task) -> None:
+        time.sleep(_number(task.args, "seconds", 1.0, 0, 600))
+        task.reply({})

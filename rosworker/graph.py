@@ -1,0 +1,110 @@
+"""Polling the ROS graph: change detection, pool re-checks and the ``graph`` snapshot.
+
+rclpy in Jazzy offers no graph-change event, so the ROS thread polls every
+``graph_poll_tick``: topic names and types plus node names are cheap (tens of
+µs) and form a fingerprint; a changed fingerprint bumps ``generation`` and
+makes the pool re-check every entry.  Between changes the pool only looks
+at each subscription's matched-publisher count (about 1 µs), and every
+second it re-checks everything, which catches what the fingerprint cannot see
+(a publisher leaving a topic that our own subscription keeps in the graph).
+
+The per-node detail the ``graph`` command returns is expensive (two calls
+per node), so it is built only when asked, once per generation.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import time
+from typing import Any
+
+from .pool import TopicPool
+from .stats import Stats
+
+log = logging.getLogger("sovd.rosworker.graph")
+
+FULL_CHECK_EVERY = 1.0      # seconds between full pool re-checks
+SNAPSHOT_RECHECK_FOR = 10.0  # keep re-checking node detail this long after a graph request
+
+
+class GraphMonitor:
+    def __init__(self, node, pool: TopicPool, stats: Stats):
+        self.node = node
+        self.pool = pool
+        self.stats = stats
+        self.own = (node.get_name(), node.get_namespace())
+        self.generation = 0
+        self._fingerprint: int | None = None
+        self._snapshot: dict[str, Any] | None = None
+        self._last_full = 0.0
+        self._last_request = 0.0
+
+    def tick(self) -> None:
+        names_types = self.node.get_topic_names_and_types()
+        nodes = self.node.get_node_names_and_namespaces()
+        fingerprint = hash((tuple((n, tuple(t)) for n, t in names_types), tuple(sorted(nodes))))
+        now = time.monotonic()
+        changed = fingerprint != self._fingerprint
+        if changed:
+            self._fingerprint = fingerprint
+            self._bump()
+        full = changed or now - self._last_full >= FULL_CHECK_EVERY
+        if full:
+            self._last_full = now
+        self.pool.check_graph(None, full)
+        if full and not changed and self._snapshot is not None \
+                and now - self._last_request < SNAPSHOT_RECHECK_FOR:
+            # Endpoint changes that leave names and types alone (a node adds a
+            # subscription to an existing topic) only show in the detail.
+            fresh = self._build()
+            if _comparable(fresh) != _comparable(self._snapshot):
+                self._bump()
+                fresh["generation"] = self.generation
+                self._snapshot = fresh
+
+    def _bump(self) -> None:
+        self.generation += 1
+        self.stats.graph_events_received += 1
+        self._snapshot = None
+
+    def snapshot(self, since: int | None = None) -> dict[str, Any]:
+        self._last_request = time.monotonic()
+        if since is not None and since == self.generation and self._snapshot is not None:
+            return {"generation": self.generation, "unchanged": True}
+        if self._snapshot is None:
+            self._snapshot = self._build()
+        return self._snapshot
+
+    def _build(self) -> dict[str, Any]:
+        own_pubs: collections.Counter = collections.Counter()
+        own_subs: collections.Counter = collections.Counter()
+        nodes = []
+        for name, namespace in sorted(self.node.get_node_names_and_namespaces(), key=lambda x: (x[1], x[0])):
+            try:
+                pubs = self.node.get_publisher_names_and_types_by_node(name, namespace)
+                subs = self.node.get_subscriber_names_and_types_by_node(name, namespace)
+            except Exception:  # the node left between the two calls
+                continue
+            if (name, namespace) == self.own:
+                own_pubs.update(t for t, _ in pubs)
+                own_subs.update(t for t, _ in subs)
+                continue
+            fqn = (namespace.rstrip("/") + "/" + name) if namespace != "/" else "/" + name
+            nodes.append({
+                "name": name, "namespace": namespace, "fqn": fqn,
+                "publishes": [[t, types[0]] for t, types in sorted(pubs) if types],
+                "subscribes": [[t, types[0]] for t, types in sorted(subs) if types],
+            })
+        topics = []
+        for name, types in sorted(self.node.get_topic_names_and_types()):
+            pubs = max(0, self.node.count_publishers(name) - own_pubs[name])
+            subs = max(0, self.node.count_subscribers(name) - own_subs[name])
+            if pubs or subs:
+                topics.append({"name": name, "types": list(types), "publisher_count": pubs,
+                               "subscriber_count": subs})
+        return {"generation": self.generation, "unchanged": False, "nodes": nodes, "topics": topics}
+
+
+def _comparable(snapshot: dict[str, Any]) -> Any:
+    return (snapshot["nodes"], [(t["name"], t["types"]) for t in snapshot["topics"]])

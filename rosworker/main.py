@@ -1,0 +1,183 @@
+"""``sovd-rosworker``: the ROS worker process.
+
+Start-up order: settings → runtime dir → lock → rclpy → IPC thread → ROS loop
+(on the main thread).  SIGTERM/SIGINT only record the request; the loop then
+stops taking work, wakes every waiter, drains what is queued, destroys every
+subscription and publisher and exits 0.
+
+Exit codes: 0 stopped on request, 2 bad settings, 3 cannot boot (lock held
+by another worker, rclpy failed to start): the supervisor does not restart a
+worker that exits 2 or 3.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import signal
+import sys
+import time
+from importlib import metadata
+
+EXIT_OK = 0
+EXIT_CONFIG = 2
+EXIT_CANNOT_BOOT = 3
+STATE_FILE = "pool.json"
+STATE_SAVE_EVERY = 1.0
+
+log = logging.getLogger("sovd.rosworker")
+
+
+def _version() -> str:
+    try:
+        return metadata.version("sovd-gateway")
+    except metadata.PackageNotFoundError:
+        return "0.0.0"
+
+
+def parse_args(argv: list[str] | None):
+    from app import config
+
+    parser = argparse.ArgumentParser(prog="sovd-rosworker",
+                                     description="The gateway's ROS worker (normally started by sovd-gateway).")
+    config.add_arguments(parser)
+    args = parser.parse_args(argv)
+    return config.load(args)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from app import config as config_mod
+
+    try:
+        cfg = parse_args(argv)
+        config_mod.ensure_runtime_dir(cfg.runtime_dir)
+    except config_mod.ConfigError as exc:
+        print(f"sovd-rosworker: {exc}", file=sys.stderr)
+        return EXIT_CONFIG
+    logging.basicConfig(level=cfg.log_level.upper(), stream=sys.stderr,
+                        format="%(asctime)s rosworker[%(process)d] %(levelname)s %(name)s: %(message)s")
+    return Worker(cfg).run()
+
+
+class Worker:
+    def __init__(self, cfg):
+        self.cfg = cfg
+        self._signal = None
+
+    def _on_signal(self, signum, _frame) -> None:
+        self._signal = signum  # only record; the loop acts
+        executor = getattr(self, "executor", None)
+        if executor is not None:
+            executor.stop()
+
+    def run(self) -> int:
+        import zmq
+
+        from ipc.server import IpcServer, LockHeld, RuntimeLock
+
+        lock = RuntimeLock(self.cfg.runtime_dir)
+        try:
+            lock.acquire()
+        except LockHeld as exc:
+            log.error("%s", exc)
+            print(f"sovd-rosworker: {exc}", file=sys.stderr)
+            return EXIT_CANNOT_BOOT
+        signal.signal(signal.SIGTERM, self._on_signal)
+        signal.signal(signal.SIGINT, self._on_signal)
+        try:
+            return self._serve(zmq, IpcServer)
+        finally:
+            lock.release()
+
+    def _serve(self, zmq, IpcServer) -> int:
+        import rclpy
+        from rclpy.node import Node
+
+        from .commands import Commands
+        from .executor import RosExecutor
+        from .graph import GraphMonitor
+        from .pool import TopicPool
+        from .publishers import PublisherPool
+        from .stats import Stats
+
+        cfg = self.cfg
+        try:
+            context = rclpy.Context()
+            rclpy.init(context=context, signal_handler_options=rclpy.SignalHandlerOptions.NO)
+            node = Node(f"{cfg.gateway_name}_sub", context=context, start_parameter_services=False,
+                        enable_rosout=False)
+        except Exception as exc:
+            log.error("rclpy could not start: %s", exc)
+            return EXIT_CANNOT_BOOT
+
+        stats = Stats(pool_cap=cfg.max_pool_size, cold_wait_cap=cfg.cold_wait_cap,
+                      watchdog_threshold_ms=cfg.watchdog_threshold)
+        zctx = zmq.Context()
+        executor = RosExecutor(context, zctx, stats, cfg.max_queue_depth)
+        pool = TopicPool(node, executor, stats, max_pool_size=cfg.max_pool_size,
+                         cold_wait_cap=cfg.cold_wait_cap, idle_safety_net=cfg.idle_safety_net,
+                         state_file=os.path.join(cfg.runtime_dir, STATE_FILE))
+        graph = GraphMonitor(node, pool, stats)
+        publishers = PublisherPool(node, executor, stats, cfg.max_publishers)
+        Commands(executor, pool, graph, publishers, sample_timeout=cfg.sample_timeout,
+                 debug=cfg.debug_commands)
+        server = IpcServer(zctx, cfg.runtime_dir, executor, stats, {
+            "version": _version(), "node": node.get_fully_qualified_name(),
+            "started_at": time.time_ns(), "domain_id": context.get_domain_id(),
+        })
+        self.executor = executor
+        if self._signal is not None:
+            executor.stop()
+
+        def every(seconds: float, fn):
+            def tick():
+                try:
+                    fn()
+                finally:
+                    executor.call_later(seconds, tick)
+            executor.call_later(seconds, tick)
+
+        graph.tick()
+        rewarm = pool.load_state()
+        every(cfg.graph_poll_tick / 1000, graph.tick)
+        if cfg.idle_safety_net:
+            every(cfg.idle_sweep_tick, pool.sweep_idle)
+        every(STATE_SAVE_EVERY, pool.save_state)
+        if rewarm:
+            executor.call_later(0, lambda: self._rewarm(pool, rewarm))
+
+        try:
+            server.start()
+        except Exception as exc:
+            log.error("cannot serve IPC on %s: %s", cfg.runtime_dir, exc)
+            node.destroy_node()
+            rclpy.shutdown(context=context)
+            return EXIT_CANNOT_BOOT
+        log.info("ROS worker ready: node %s, domain %s, socket %s", node.get_fully_qualified_name(),
+                 context.get_domain_id(), cfg.runtime_dir)
+        try:
+            executor.run()
+            # Stop taking work, wake every waiter, answer what is queued, release everything.
+            server.close_for_work()
+            pool.closing = True
+            pool.shutdown()
+            executor.drain()
+            publishers.shutdown()
+        finally:
+            executor.close()
+            server.finish()
+            node.destroy_node()
+            rclpy.try_shutdown(context=context)
+            zctx.destroy(linger=0)
+        log.info("ROS worker stopped (signal %s)", self._signal)
+        return EXIT_OK
+
+    @staticmethod
+    def _rewarm(pool, topics: list[str]) -> None:
+        warmed = [t for t in topics if pool.subscribe(t)["status"] == "pooled"]
+        log.info("re-subscribed %d of %d topics pooled before the restart", len(warmed), len(topics))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
