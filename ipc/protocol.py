@@ -49,7 +49,7 @@ def unpack(frame: bytes, max_size: int = MAX_FRAME) -> Any:
         raise ValueError(f"frame of {len(frame)} bytes exceeds {max_size}")
     try:
         obj = msgpack.unpackb(
-            frame, raw=False, strict_map_key=True, max_buffer_size=max_size,
+            frame, raw=False, strict_map_key=True,
         )
     except Exception as exc:  # msgpack raises several unrelated types
         raise ValueError(f"not a msgpack frame: {type(exc).__name__}") from None

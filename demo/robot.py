@@ -1,0 +1,117 @@
+"""A small demo vehicle: a few ROS 2 nodes publishing sensor-like topics.
+
+Not part of the gateway.  ``make run`` starts it beside the gateway so that a
+newcomer can read live data at once::
+
+    /powertrain/engine/temp_sensor    → /powertrain/engine/temperature   (sensor_msgs/msg/Temperature, 10 Hz)
+    /chassis/brakes/pressure_sensor   → /chassis/brakes/pressure         (sensor_msgs/msg/FluidPressure, 20 Hz)
+    /chassis/odometry                 → /chassis/odom                    (nav_msgs/msg/Odometry, 10 Hz)
+    /body/lights/controller           ← /body/lights/command (std_msgs/msg/Bool)
+                                      → /body/lights/state   (std_msgs/msg/String, latched)
+    /diagnostics_agent                → /diagnostics                     (diagnostic_msgs/msg/DiagnosticArray, 1 Hz)
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+import threading
+import time
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from nav_msgs.msg import Odometry
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import FluidPressure, Temperature
+from std_msgs.msg import Bool, String
+
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def _periodic(node: Node, topic: str, cls, hz: float, fill) -> None:
+    pub = node.create_publisher(cls, topic, 10)
+
+    def tick():
+        msg = cls()
+        fill(msg, time.monotonic())
+        pub.publish(msg)
+
+    node.create_timer(1.0 / hz, tick)
+
+
+def build() -> list[Node]:
+    engine = Node("temp_sensor", namespace="/powertrain/engine")
+
+    def temperature(msg, t):
+        msg.header.stamp = engine.get_clock().now().to_msg()
+        msg.header.frame_id = "engine"
+        msg.temperature = 90.0 + 5.0 * math.sin(t / 10.0)
+        msg.variance = 0.5
+
+    _periodic(engine, "temperature", Temperature, 10, temperature)
+
+    brakes = Node("pressure_sensor", namespace="/chassis/brakes")
+
+    def pressure(msg, t):
+        msg.header.stamp = brakes.get_clock().now().to_msg()
+        msg.header.frame_id = "brakes"
+        msg.fluid_pressure = 2.0e6 + 1.0e5 * math.sin(t)
+        msg.variance = 10.0
+
+    _periodic(brakes, "pressure", FluidPressure, 20, pressure)
+
+    odometry = Node("odometry", namespace="/chassis")
+
+    def odom(msg, t):
+        msg.header.stamp = odometry.get_clock().now().to_msg()
+        msg.header.frame_id = "odom"
+        msg.child_frame_id = "base_link"
+        msg.pose.pose.position.x = 10.0 * math.cos(t / 20.0)
+        msg.pose.pose.position.y = 10.0 * math.sin(t / 20.0)
+        msg.twist.twist.linear.x = 0.5
+
+    _periodic(odometry, "odom", Odometry, 10, odom)
+
+    lights = Node("controller", namespace="/body/lights")
+    state_pub = lights.create_publisher(String, "state", LATCHED)
+    state_pub.publish(String(data="off"))
+    lights.create_subscription(
+        Bool, "command", lambda msg: state_pub.publish(String(data="on" if msg.data else "off")), 10)
+
+    diag = Node("diagnostics_agent")
+
+    def diagnostics(msg, t):
+        msg.header.stamp = diag.get_clock().now().to_msg()
+        msg.status = [DiagnosticStatus(level=DiagnosticStatus.OK, name="engine", message="running",
+                                       hardware_id="ecu-1",
+                                       values=[KeyValue(key="rpm", value=str(int(800 + 50 * math.sin(t))))])]
+
+    _periodic(diag, "/diagnostics", DiagnosticArray, 1, diagnostics)
+    return [engine, brakes, odometry, lights, diag]
+
+
+def main() -> None:
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    rclpy.init(signal_handler_options=rclpy.SignalHandlerOptions.NO)
+    nodes = build()
+    executor = SingleThreadedExecutor()
+    for node in nodes:
+        executor.add_node(node)
+    print("demo robot running: " + ", ".join(n.get_fully_qualified_name() for n in nodes), flush=True)
+    try:
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=0.1)
+    finally:
+        for node in nodes:
+            executor.remove_node(node)
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()
