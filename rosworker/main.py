@@ -25,6 +25,8 @@ EXIT_CONFIG = 2
 EXIT_CANNOT_BOOT = 3
 STATE_FILE = "pool.json"
 STATE_SAVE_EVERY = 1.0
+REWARM_FOR = 30.0    # seconds to keep trying to re-subscribe topics pooled before a restart
+REWARM_RETRY = 0.25
 
 log = logging.getLogger("sovd.rosworker")
 
@@ -145,7 +147,7 @@ class Worker:
             every(cfg.idle_sweep_tick, pool.sweep_idle)
         every(STATE_SAVE_EVERY, pool.save_state)
         if rewarm:
-            executor.call_later(0, lambda: self._rewarm(pool, rewarm))
+            self._rewarm(executor, pool, rewarm, time.monotonic() + REWARM_FOR)
 
         try:
             server.start()
@@ -173,10 +175,15 @@ class Worker:
         log.info("ROS worker stopped (signal %s)", self._signal)
         return EXIT_OK
 
-    @staticmethod
-    def _rewarm(pool, topics: list[str]) -> None:
-        warmed = [t for t in topics if pool.subscribe(t)["status"] == "pooled"]
-        log.info("re-subscribed %d of %d topics pooled before the restart", len(warmed), len(topics))
+    def _rewarm(self, executor, pool, topics: list[str], until: float) -> None:
+        """Subscribe again to the topics pooled before a restart, as their publishers are discovered."""
+        pending = [t for t in topics if pool.subscribe(t)["status"] != "pooled"]
+        if len(pending) < len(topics):
+            log.info("re-subscribed %d topics pooled before the restart", len(topics) - len(pending))
+        if pending and time.monotonic() < until and not executor.stopping:
+            executor.call_later(REWARM_RETRY, lambda: self._rewarm(executor, pool, pending, until))
+        elif pending:
+            log.info("gave up re-subscribing %d topics with no publishers", len(pending))
 
 
 if __name__ == "__main__":

@@ -29,13 +29,20 @@ def _load(type_name: str):
     return getattr(importlib.import_module(f"{pkg}.msg"), name)
 
 
+def _value(value):
+    """JSON cannot carry ``bytes``: ``{"__bytes__": [1, 2]}`` becomes ``[b"\\x01", b"\\x02"]``."""
+    if isinstance(value, dict) and "__bytes__" in value:
+        return [bytes([b]) for b in value["__bytes__"]]
+    return value
+
+
 def _assign(msg, values: dict) -> None:
     for key, value in values.items():
         current = getattr(msg, key)
-        if isinstance(value, dict):
+        if isinstance(value, dict) and "__bytes__" not in value:
             _assign(current, value)
         else:
-            setattr(msg, key, value)
+            setattr(msg, key, _value(value))
 
 
 def _plain(msg):

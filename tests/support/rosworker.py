@@ -1,0 +1,67 @@
+"""Start the real ``sovd-rosworker`` on a private runtime dir and talk to it over its socket."""
+
+from __future__ import annotations
+
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+from ipc.client import RosWorkerClient
+from ipc.errors import IpcError
+
+from .procs import Proc, poll_until
+
+BIN = Path(sys.executable).parent
+SHADOW = Path(__file__).parent / "shadow"
+
+
+class RosWorker(Proc):
+    """``sovd-rosworker --runtime-dir <tmp> --<setting> <value> ...``; ready once it answers ping."""
+
+    def __init__(self, runtime_dir: str | None = None, env: dict | None = None, wait: bool = True,
+                 **settings):
+        self._own_dir = runtime_dir is None
+        self.runtime_dir = runtime_dir or tempfile.mkdtemp(prefix="sovd-rw-")
+        argv = [str(BIN / "sovd-rosworker"), "--runtime-dir", self.runtime_dir]
+        for name, value in settings.items():
+            flag = "--" + name.replace("_", "-")
+            if value is True:
+                argv.append(flag)
+            else:
+                argv += [flag, str(value)]
+        super().__init__(argv, env=env, name="sovd-rosworker")
+        self.client = RosWorkerClient.for_runtime_dir(self.runtime_dir)
+        if wait:
+            poll_until(self._pong, 30, interval=0.1, message="ROS worker ping")
+
+    def _pong(self) -> bool:
+        if self.proc.poll() is not None:
+            raise AssertionError(f"sovd-rosworker exited with {self.proc.returncode}:\n"
+                                 + "\n".join(self.output[-40:]))
+        try:
+            return bool(self.client.call("ping", timeout=0.5))
+        except IpcError:
+            return False
+
+    def call(self, cmd: str, args: dict | None = None, timeout: float = 5.0) -> dict:
+        return self.client.call(cmd, args, timeout=timeout)
+
+    def stats(self) -> dict:
+        return self.call("stats")
+
+    def sample(self, topic: str, timeout_ms: int = 3000, **args) -> dict:
+        return self.call("sample", {"topic": topic, "timeout_ms": timeout_ms, **args},
+                         timeout=timeout_ms / 1000 + 5)
+
+    def sample_data(self, topic: str, timeout: float = 15.0) -> dict:
+        """Sample until the answer has data (the first read after discovery may be cold)."""
+        return poll_until(lambda: (lambda r: r if r["status"] == "data" else None)(self.sample(topic)),
+                          timeout, interval=0.1, message=f"data on {topic}")
+
+    def stop(self, timeout: float = 10.0) -> int:
+        self.client.close()
+        code = super().stop(timeout)
+        if self._own_dir:
+            shutil.rmtree(self.runtime_dir, ignore_errors=True)
+        return code
