@@ -1,0 +1,78 @@
+"""gunicorn settings for the HTTP side, read from the resolved ``SOVD_*`` settings.
+
+The supervisor starts gunicorn as::
+
+    python -m gunicorn -c python:app.gunicorn_conf 'app.wsgi:create_app()'
+
+with every setting in the environment (``Config.to_env()``), so this module
+holds no defaults of its own: it maps the gateway's settings onto gunicorn's.
+
+- ``gthread`` workers: a request that waits on a cold topic holds one thread,
+  not a whole process; ``workers`` × ``threads`` requests run at once.
+- No ``preload_app``: the Flask app (and its ZeroMQ client) is made in each
+  worker after the fork, never in the master.
+- ``graceful_timeout`` is ``shutdown_grace``: on SIGTERM in-flight requests
+  get that long, then gunicorn kills its workers.
+- ``timeout`` (the worker heartbeat) is well above the longest request a
+  worker may legitimately serve (a cold sample plus IPC).
+- ``keepalive`` is longer than nginx's upstream ``keepalive_timeout`` (60 s),
+  so gunicorn never closes an idle connection that nginx is about to reuse.
+- Proxy headers (``X-Forwarded-*``) are trusted only from ``forwarded_allow_ips``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import sys
+
+from app import config as _config
+
+_cfg = _config.load(None)
+
+bind = [_cfg.bind]
+workers = _cfg.workers
+worker_class = "gthread"
+threads = _cfg.threads
+graceful_timeout = max(1, math.ceil(_cfg.shutdown_grace))  # gunicorn wants whole seconds
+timeout = int(max(30.0, 2 * _cfg.sample_timeout + 2 * _cfg.ipc_timeout + 10))
+keepalive = 75
+forwarded_allow_ips = _cfg.forwarded_allow_ips
+preload_app = False
+# Heartbeat files of the workers: on the runtime dir (tmpfs under systemd, writable
+# under ProtectSystem=strict) instead of the temp dir.
+worker_tmp_dir = _cfg.runtime_dir if os.path.isdir(_cfg.runtime_dir) else None
+# gunicorn >= 25 opens a control socket under $XDG_RUNTIME_DIR or $HOME by default:
+# not wanted (ProtectHome=, several gateways per user in tests); gunicorn < 25 ignores this.
+control_socket_disable = True
+proc_name = "sovd-gateway-http"
+
+loglevel = _cfg.log_level
+errorlog = "-"
+# One access line per request on stdout (the journal) unless the operator asked for less.
+accesslog = "-" if _cfg.log_level in ("debug", "info") else None
+access_log_format = '%(h)s "%(r)s" %(s)s %(B)s %(M)sms'
+
+# Request limits: the body limit itself is enforced by the app (413); these bound headers.
+limit_request_line = 8190
+limit_request_fields = 100
+
+
+def on_starting(server) -> None:
+    """Die with the supervisor: if it is killed outright, this master gets SIGTERM."""
+    parent = os.environ.get("SOVD_SUPERVISOR_PID")
+    if not parent or not sys.platform.startswith("linux"):
+        return
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        pr_set_pdeathsig = 1
+        libc.prctl(pr_set_pdeathsig, int(signal.SIGTERM), 0, 0, 0)
+    except (OSError, AttributeError):
+        return
+    if str(os.getppid()) != parent:
+        # The supervisor died before prctl took effect.
+        server.log.error("supervisor (pid %s) is gone; not starting", parent)
+        sys.exit(1)
