@@ -1,0 +1,213 @@
+"""A stand-in ROS worker for unit tests of the HTTP side: a real ZeroMQ ROUTER socket.
+
+It binds ``ipc://<runtime_dir>/rosworker.sock`` like the real one and answers
+the commands of ``ipc/PROTOCOL.md`` from canned data, in a thread:
+
+    fw = FakeWorker().start()
+    fw.set_graph([node("/powertrain/engine/temp_sensor", publishes=[("/powertrain/engine/temperature",
+                                                                      "sensor_msgs/msg/Temperature")])])
+    fw.samples["/powertrain/engine/temperature"] = data_sample(..., {"temperature": 93.5})
+    fw.silent.add("sample")          # never answer samples (timeouts)
+    fw.errors["publish"] = IpcError("invalid-data", "...")
+    fw.requests                      # [(cmd, args, deadline_ms), ...] as received
+    fw.stop()
+
+A reply can be a dict, an :class:`IpcError`, or a callable ``args -> dict``.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import shutil
+import tempfile
+import threading
+import time
+from typing import Any
+
+import orjson
+import zmq
+
+from ipc import protocol
+from ipc.errors import IpcError
+
+DEFAULT_TOPICS = (("/rosout", "rcl_interfaces/msg/Log"),)
+DEFAULT_SUBSCRIPTIONS = (("/parameter_events", "rcl_interfaces/msg/ParameterEvent"),)
+STATS = {
+    "data_provider": {"pool_size": 1, "pool_cap": 256, "pool_hits": 5, "pool_misses": 2,
+                      "evictions_total": 0, "type_change_events": 0, "graph_events_received": 3,
+                      "concurrent_cold_waits": 0, "cold_wait_cap": 4, "unsupported_type_count": 0},
+    "executor": {"worker_alive": True, "degraded": False, "queue_depth": 0, "queue_max_depth_observed": 2,
+                 "queue_dropped": 0, "tasks_completed": 9, "tasks_failed": 0, "last_task_latency_us": 120,
+                 "max_task_latency_us": 900, "current_task_age_ms": 0, "watchdog_trips": 0,
+                 "graph_events_received": 3},
+}
+
+
+def node(fqn: str, publishes=(), subscribes=(), defaults: bool = True) -> dict[str, Any]:
+    """One entry of the ``graph`` answer's ``nodes``; adds /rosout and /parameter_events."""
+    namespace, _, name = fqn.rpartition("/")
+    pubs = [list(p) for p in publishes] + ([list(p) for p in DEFAULT_TOPICS] if defaults else [])
+    subs = [list(s) for s in subscribes] + ([list(s) for s in DEFAULT_SUBSCRIPTIONS] if defaults else [])
+    return {"name": name, "namespace": namespace or "/", "fqn": fqn,
+            "publishes": sorted(pubs), "subscribes": sorted(subs)}
+
+
+def topics_of(nodes: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    table: dict[str, dict[str, Any]] = {}
+    for n in nodes:
+        for key, count in (("publishes", "publisher_count"), ("subscribes", "subscriber_count")):
+            for name, type_ in n[key]:
+                t = table.setdefault(name, {"name": name, "types": [type_], "publisher_count": 0,
+                                            "subscriber_count": 0})
+                t[count] += 1
+    return [table[k] for k in sorted(table)]
+
+
+def data_sample(topic: str, type_: str, data: Any, publishers: int = 1, subscribers: int = 0,
+                timestamp: int = 1769955039964403368) -> dict[str, Any]:
+    return {"topic": topic, "type": type_, "status": "data", "data_json": orjson.dumps(data),
+            "timestamp": timestamp, "publisher_count": publishers, "subscriber_count": subscribers}
+
+
+def metadata_sample(topic: str, type_: str | None = None, reason: str = "not-in-graph",
+                    publishers: int = 0) -> dict[str, Any]:
+    return {"topic": topic, "type": type_, "status": "metadata_only", "data_json": b"{}",
+            "timestamp": time.time_ns(), "publisher_count": publishers, "subscriber_count": 0,
+            "reason": reason}
+
+
+class FakeWorker:
+    def __init__(self, runtime_dir: str | None = None):
+        self._own_dir = runtime_dir is None
+        self.runtime_dir = runtime_dir or tempfile.mkdtemp(prefix="sovd-fw-")
+        self.endpoint = protocol.endpoint(self.runtime_dir)
+        self.generation = 1
+        self.nodes: list[dict[str, Any]] = []
+        self.topics: list[dict[str, Any]] = []
+        self.samples: dict[str, Any] = {}
+        self.type_infos: dict[str, dict[str, Any]] = {}
+        self.stats: dict[str, Any] = {k: dict(v) for k, v in STATS.items()}
+        self.errors: dict[str, IpcError] = {}
+        self.silent: set[str] = set()
+        self.delays: dict[str, float] = {}
+        self.requests: list[tuple[str, dict[str, Any], int]] = []
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._bound = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    # ---------------------------------------------------------------- programming
+
+    def set_graph(self, nodes: list[dict[str, Any]], topics: list[dict[str, Any]] | None = None) -> None:
+        with self._lock:
+            self.nodes = nodes
+            self.topics = topics_of(nodes) if topics is None else topics
+            self.generation += 1
+
+    def calls(self, cmd: str) -> list[dict[str, Any]]:
+        with self._lock:
+            return [args for c, args, _ in self.requests if c == cmd]
+
+    def deadlines(self, cmd: str) -> list[int]:
+        with self._lock:
+            return [d for c, _, d in self.requests if c == cmd]
+
+    # ---------------------------------------------------------------- lifecycle
+
+    def start(self) -> FakeWorker:
+        self._thread = threading.Thread(target=self._run, name="fakeworker", daemon=True)
+        self._thread.start()
+        if not self._bound.wait(5):
+            raise RuntimeError("fake worker did not bind")
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+
+    def close(self) -> None:
+        self.stop()
+        if self._own_dir:
+            shutil.rmtree(self.runtime_dir, ignore_errors=True)
+
+    def __enter__(self) -> FakeWorker:
+        return self.start()
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    # ---------------------------------------------------------------- the loop
+
+    def _run(self) -> None:
+        ctx = zmq.Context()
+        sock = ctx.socket(zmq.ROUTER)
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.bind(self.endpoint)
+        self._bound.set()
+        pending: list[tuple[float, int, bytes, bytes]] = []
+        seq = itertools.count()
+        try:
+            while not self._stop.is_set():
+                timeout = 20
+                if pending:
+                    timeout = max(0, min(timeout, int((pending[0][0] - time.monotonic()) * 1000)))
+                if sock.poll(timeout, zmq.POLLIN):
+                    ident, frame = sock.recv_multipart()
+                    reply = self._answer(frame)
+                    if reply is not None:
+                        due, payload = reply
+                        heapq.heappush(pending, (due, next(seq), ident, payload))
+                while pending and pending[0][0] <= time.monotonic():
+                    _, _, ident, payload = heapq.heappop(pending)
+                    sock.send_multipart([ident, payload])
+        finally:
+            sock.close(linger=0)
+            ctx.term()
+
+    def _answer(self, frame: bytes) -> tuple[float, bytes] | None:
+        msg = protocol.unpack(frame)
+        cmd, args, rid = msg.get("cmd"), msg.get("args") or {}, msg.get("id")
+        with self._lock:
+            self.requests.append((cmd, args, msg.get("deadline_ms")))
+            if cmd in self.silent:
+                return None
+            try:
+                if cmd in self.errors:
+                    raise self.errors[cmd]
+                result = self._result(cmd, args)
+                if isinstance(result, IpcError):
+                    raise result
+                reply = {"v": 1, "id": rid, "ok": True, "result": result}
+            except IpcError as exc:
+                reply = {"v": 1, "id": rid, "ok": False, "error": exc.to_wire()}
+            due = time.monotonic() + self.delays.get(cmd, 0.0)
+        return due, protocol.pack(reply)
+
+    def _result(self, cmd: str, args: dict[str, Any]) -> Any:
+        if cmd == "ping":
+            return {"pid": 1, "uptime_s": 1.0, "version": "0", "protocol": 1, "node": "fake_sub",
+                    "started_at": 0}
+        if cmd == "stats":
+            return {**self.stats, "pid": 1}
+        if cmd == "graph":
+            if args.get("since") == self.generation:
+                return {"generation": self.generation, "unchanged": True}
+            return {"generation": self.generation, "unchanged": False, "nodes": self.nodes,
+                    "topics": self.topics}
+        if cmd == "sample":
+            reply = self.samples.get(args.get("topic"))
+            if reply is None:
+                return metadata_sample(args.get("topic"))
+            return reply(args) if callable(reply) else reply
+        if cmd == "type_info":
+            info = self.type_infos.get(args.get("type"))
+            if info is None:
+                return IpcError("type-not-installed", f"message type {args.get('type')} is not installed",
+                                {"type": args.get("type")})
+            return {"type": args["type"], **info}
+        if cmd == "publish":
+            return {"topic": args.get("topic"), "type": args.get("type"), "status": "published",
+                    "subscriber_count": 0}
+        return IpcError("unknown-command", f"unknown command {cmd!r}")
