@@ -211,3 +211,23 @@ class FakeWorker:
             return {"topic": args.get("topic"), "type": args.get("type"), "status": "published",
                     "subscriber_count": 0}
         return IpcError("unknown-command", f"unknown command {cmd!r}")
+
+
+def make_app(worker: FakeWorker | None = None, runtime_dir: str | None = None, **overrides: Any):
+    """The Flask app (``app.wsgi.create_app``) wired to ``worker``'s socket.
+
+    Defaults for tests: hostname ``test-robot``, graph asked on every request.
+    """
+    from app.wsgi import create_app
+
+    config = {"runtime_dir": runtime_dir or worker.runtime_dir, "SOVD_HOSTNAME": "test-robot",
+              "SOVD_GRAPH_REFRESH_S": 0.0, **overrides}
+    return create_app(config)
+
+
+ROBOT = [
+    node("/powertrain/engine/temp_sensor", [("/powertrain/engine/temperature", "sensor_msgs/msg/Temperature")]),
+    node("/chassis/brakes/pressure_sensor", [("/chassis/brakes/pressure", "std_msgs/msg/Float32")]),
+    node("/body/lights/controller", [("/body/lights/state", "std_msgs/msg/Bool")],
+         [("/body/lights/cmd", "std_msgs/msg/Bool")]),
+]

@@ -1,0 +1,132 @@
+"""JSON errors: the application's own error type and the handlers that send every error as JSON.
+
+Body (``rest-contract.md``)::
+
+    {"error_code": "entity-not-found", "message": "Entity not found", "parameters": {"entity_id": "x"}}
+
+``parameters`` is left out when empty; vendor errors add ``vendor_code``.
+A retryable 503 carries ``Retry-After``.  Handlers are registered most
+specific first: :class:`ApiError`, :class:`~ipc.errors.IpcError`, Werkzeug's
+``HTTPException`` (404 unmatched route, 405, 413 ...), and last a catch-all that
+logs the traceback and answers a bare 500 (a traceback never reaches a client).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import orjson
+from flask import Flask, Response, current_app, request
+from werkzeug.exceptions import HTTPException
+
+from ipc.errors import IpcError
+
+# HTTP status -> SOVD error_code for errors that Werkzeug raises.
+HTTP_CODES = {
+    400: "invalid-request",
+    401: "unauthorized",
+    403: "forbidden",
+    404: "resource-not-found",
+    405: "invalid-request",
+    413: "payload-too-large",
+    500: "internal-error",
+    501: "not-implemented",
+    503: "service-unavailable",
+    504: "not-responding",
+}
+HTTP_MESSAGES = {
+    404: "Resource not found",
+    405: "Method not allowed",
+    413: "Request body too large",
+}
+
+
+class ApiError(Exception):
+    """An error answered to the HTTP client; carries its status and its body."""
+
+    def __init__(self, status: int, error_code: str, message: str,
+                 parameters: dict[str, Any] | None = None, *, vendor_code: str | None = None,
+                 retry_after: int | None = None, headers: dict[str, str] | None = None):
+        super().__init__(message)
+        self.status = status
+        self.error_code = error_code
+        self.message = message
+        self.parameters = dict(parameters or {})
+        self.vendor_code = vendor_code
+        self.retry_after = retry_after
+        self.headers = dict(headers or {})
+
+    def to_dict(self) -> dict[str, Any]:
+        body: dict[str, Any] = {"error_code": self.error_code}
+        if self.vendor_code:
+            body["vendor_code"] = self.vendor_code
+        body["message"] = self.message
+        if self.parameters:
+            body["parameters"] = self.parameters
+        return body
+
+    @classmethod
+    def from_ipc(cls, exc: IpcError, parameters: dict[str, Any] | None = None,
+                 message: str | None = None) -> ApiError:
+        """Map a ROS-worker error through the one table of ``ipc/errors.py``."""
+        params = {**exc.params, **(parameters or {})}
+        return cls(exc.status, exc.error_code, message or exc.message, params,
+                   vendor_code=exc.vendor_code, retry_after=exc.retry_after)
+
+    def __repr__(self) -> str:
+        return f"ApiError({self.status}, {self.error_code!r}, {self.message!r})"
+
+
+def error_response(err: ApiError) -> Response:
+    headers = dict(err.headers)
+    if err.retry_after is not None:
+        headers["Retry-After"] = str(err.retry_after)
+    return current_app.response_class(orjson.dumps(err.to_dict()), status=err.status,
+                                      mimetype="application/json", headers=headers)
+
+
+def _handle_api_error(err: ApiError) -> Response:
+    return error_response(err)
+
+
+def _handle_ipc_error(exc: IpcError) -> Response:
+    if exc.status >= 500 and exc.code == "internal":
+        current_app.logger.error("ROS worker error on %s %s: %s", request.method, request.path, exc.message)
+    return error_response(ApiError.from_ipc(exc))
+
+
+def _handle_http(exc: HTTPException) -> Response | HTTPException:
+    status = exc.code
+    if status is None or status < 400:
+        return exc  # redirects and the like are not errors
+    code = HTTP_CODES.get(status, "invalid-request" if status < 500 else "internal-error")
+    message = HTTP_MESSAGES.get(status) or exc.name
+    params: dict[str, Any] = {}
+    headers: dict[str, str] = {}
+    if status == 404:
+        params["path"] = request.path
+    elif status == 405:
+        allowed = sorted(getattr(exc, "valid_methods", None) or [])
+        params.update({"method": request.method, "allowed_methods": allowed})
+        if allowed:
+            headers["Allow"] = ", ".join(allowed)
+    elif status == 413:
+        limit = current_app.config.get("MAX_CONTENT_LENGTH")
+        if limit:
+            params["max_body_bytes"] = limit
+            message = f"Request body too large (limit {limit} bytes)"
+    elif status == 400 and exc.description:
+        params["details"] = exc.description
+    return error_response(ApiError(status, code, message, params, headers=headers))
+
+
+def _handle_unexpected(exc: Exception) -> Response:
+    current_app.logger.exception("Unhandled error on %s %s", request.method, request.path)
+    return error_response(ApiError(500, "internal-error", "Internal server error"))
+
+
+def init_app(app: Flask) -> None:
+    app.register_error_handler(ApiError, _handle_api_error)
+    app.register_error_handler(IpcError, _handle_ipc_error)
+    app.register_error_handler(HTTPException, _handle_http)
+    app.register_error_handler(Exception, _handle_unexpected)

@@ -1,0 +1,138 @@
+"""``{entity}/data``: the entity's data items, one sample of a topic, publishing one message.
+
+Reading a sample is the hot path: the ROS worker sends the message already
+encoded as JSON (``data_json``), and the body is assembled around those bytes
+without decoding them.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import orjson
+from flask import Blueprint, current_app
+
+from ipc.errors import IpcError
+
+from .. import rosclient
+from ..entities import API_BASE, data_items
+from ..errors import ApiError
+from .common import check_entity_id, config, json_response, lookup
+from .requests import authorize_publish, bytes_mode, publish_body, topic_from_data_id
+
+bp = Blueprint("data", __name__, url_prefix=API_BASE)
+
+# The IPC deadline of a sample is the sample timeout plus this margin.
+SAMPLE_IPC_MARGIN_S = 1.5
+ENTITY = "/<collection:collection>/<entity_id>"
+
+
+@bp.get(ENTITY + "/data")
+def listing(collection: str, entity_id: str):
+    entity = lookup(collection, entity_id)
+    ros = rosclient.get()
+    types = sorted({t.type for t in entity.topics.values() if t.type})
+    infos: dict[str, dict[str, Any] | None] = {}
+    # type_info is a nicety: bounded by one IPC timeout overall, left out on trouble.
+    deadline = time.monotonic() + config().ipc_timeout
+    for type_name in types:
+        remaining = deadline - time.monotonic()
+        if remaining <= 0.01:
+            break
+        try:
+            infos[type_name] = ros.type_info(type_name, timeout=remaining)
+        except IpcError as exc:
+            if exc.code in ("unavailable", "shutdown"):
+                raise
+            current_app.logger.info("type_info %s: %s", type_name, exc.message)
+            break
+    return json_response(data_items(entity, infos))
+
+
+@bp.get(ENTITY + "/data/<data_id:data_id>")
+def read(collection: str, entity_id: str, data_id: str):
+    check_entity_id(entity_id)
+    topic = topic_from_data_id(data_id)
+    mode = bytes_mode()
+    entity = lookup(collection, entity_id)
+    timeout = config().sample_timeout
+    args: dict[str, Any] = {"topic": topic, "timeout_ms": int(round(timeout * 1000))}
+    if mode != "array":
+        args["bytes"] = mode
+    try:
+        result = rosclient.get().call("sample", args, timeout + SAMPLE_IPC_MARGIN_S)
+    except IpcError as exc:
+        raise _sample_error(exc, entity.id, topic, data_id) from None
+    data = result.get("data_json")
+    if not isinstance(data, bytes) or not data:
+        data = b"{}"
+    status = result.get("status") if result.get("status") in ("data", "metadata_only") else "metadata_only"
+    ros2: dict[str, Any] = {"topic": topic}
+    if isinstance(result.get("type"), str):
+        ros2["type"] = result["type"]
+    ext: dict[str, Any] = {
+        "entity_id": entity.id,
+        "timestamp": result.get("timestamp") if isinstance(result.get("timestamp"), int) else time.time_ns(),
+        "ros2": ros2,
+        "publisher_count": result.get("publisher_count", 0),
+        "subscriber_count": result.get("subscriber_count", 0),
+        "status": status,
+    }
+    if status == "metadata_only":
+        if result.get("reason"):
+            ext["reason"] = result["reason"]
+        data = b"{}"
+    body = b"".join((b'{"id":', orjson.dumps(topic), b',"data":', data,
+                     b',"x-medkit":', orjson.dumps(ext), b"}"))
+    return current_app.response_class(body, mimetype="application/json")
+
+
+def _sample_error(exc: IpcError, entity_id: str, topic: str, data_id: str) -> ApiError:
+    params = {"entity_id": entity_id, "topic_name": data_id[:300]}
+    if exc.code == "cold-wait-cap-exceeded":
+        cap = exc.params.get("cold_wait_cap", config().cold_wait_cap)
+        return ApiError.from_ipc(
+            exc, {"topic": topic, "cold_wait_cap": cap, **params},
+            message=f"Too many requests are already waiting for the first message of cold topics "
+                    f"(cap {cap}); retry with backoff",
+        )
+    return ApiError.from_ipc(exc, params)
+
+
+@bp.put(ENTITY + "/data/<data_id:data_id>")
+def write(collection: str, entity_id: str, data_id: str):
+    authorize_publish()
+    check_entity_id(entity_id)
+    topic = topic_from_data_id(data_id)
+    type_name, data = publish_body()
+    entity = lookup(collection, entity_id)
+    timeout = config().ipc_timeout
+    try:
+        # Not idempotent: sent once, never again after a timeout.
+        rosclient.get().call("publish", {"topic": topic, "type": type_name, "data": data}, timeout)
+    except IpcError as exc:
+        params = {"entity_id": entity.id, "topic_name": data_id[:300]}
+        if exc.code == "deadline-exceeded":
+            raise ApiError.from_ipc(exc, params, message=(
+                f"The ROS worker did not confirm the publish within {timeout:g} s; "
+                "the message may or may not have been published")) from None
+        raise ApiError.from_ipc(exc, params) from None
+    return json_response({
+        "id": topic,
+        "data": data,
+        "x-medkit": {"ros2": {"topic": topic, "type": type_name}, "entity_id": entity.id,
+                     "status": "published"},
+    })
+
+
+@bp.get(ENTITY + "/data-categories")
+def data_categories(collection: str, entity_id: str):
+    raise ApiError(501, "not-implemented", "Data categories are not implemented for ROS 2",
+                   {"feature": "data-categories"})
+
+
+@bp.get(ENTITY + "/data-groups")
+def data_groups(collection: str, entity_id: str):
+    raise ApiError(501, "not-implemented", "Data groups are not implemented for ROS 2",
+                   {"feature": "data-groups"})

@@ -1,0 +1,156 @@
+"""Checks on what a data request carries, done before anything reaches the ROS worker.
+
+- the topic addressed by ``{data_id}`` (three spellings, one topic);
+- the ``bytes`` query parameter;
+- for ``PUT``: who may publish (``allow_publish``, bearer token) and the body.
+"""
+
+from __future__ import annotations
+
+import hmac
+import re
+from typing import Any
+from urllib.parse import unquote_to_bytes, urlsplit
+
+import orjson
+from flask import current_app, request
+from werkzeug.exceptions import RequestEntityTooLarge
+
+from ipc import protocol
+from ipc.topics import InvalidTopic, normalize_topic
+
+from ..errors import ApiError
+from .common import config
+
+_BAD_PERCENT = re.compile(r"%(?![0-9A-Fa-f]{2})")
+_MESSAGE_TYPE = re.compile(r"[A-Za-z][A-Za-z0-9_]*/msg/[A-Za-z][A-Za-z0-9_]*")
+MAX_TYPE_LENGTH = 256
+BYTES_MODES = ("array", "base64")
+# Room left in one IPC frame for the envelope around a published message.
+FRAME_SLACK = 64 * 1024
+
+
+def _invalid_topic(details: str, data_id: str) -> ApiError:
+    return ApiError(400, "invalid-parameter", "Invalid topic name",
+                    {"details": details, "data_id": data_id[:300]})
+
+
+def topic_from_data_id(data_id: str) -> str:
+    """The ROS topic that ``{data_id}`` names, or a 400 ``invalid-parameter``.
+
+    The server has already percent-decoded the path before routing, so
+    ``a%2Fb``, ``a/b`` and ``/a/b`` (from ``data//a/b``) all arrive here as a
+    path; a missing leading ``/`` is added.  What decoding hides is checked on
+    the raw request URI when the server provides it (gunicorn and Werkzeug
+    do): a ``%`` not followed by two hex digits, or bytes that are not UTF-8.
+    """
+    raw = request.environ.get("RAW_URI") or request.environ.get("REQUEST_URI")
+    if raw:
+        path = urlsplit(raw).path
+        if _BAD_PERCENT.search(path):
+            raise _invalid_topic("the request path contains an invalid percent-encoding", data_id)
+        try:
+            unquote_to_bytes(path).decode("utf-8")
+        except UnicodeDecodeError:
+            raise _invalid_topic("the request path does not decode to UTF-8", data_id) from None
+    if "\x00" in data_id:
+        raise _invalid_topic("the topic name contains a NUL byte", data_id)
+    try:
+        return normalize_topic(data_id)
+    except InvalidTopic as exc:
+        raise _invalid_topic(str(exc), data_id) from None
+
+
+def bytes_mode() -> str:
+    """``array`` (default) or ``base64`` from ``?bytes=``."""
+    mode = request.args.get("bytes", "array")
+    if mode not in BYTES_MODES:
+        raise ApiError(400, "invalid-parameter", "Invalid value of query parameter 'bytes'",
+                       {"details": "expected 'array' or 'base64'", "bytes": mode[:100]})
+    return mode
+
+
+def authorize_publish() -> None:
+    """403 unless publishing is on; with an API token, 401 without it and 403 with a wrong one."""
+    cfg = config()
+    if not cfg.allow_publish:
+        raise ApiError(403, "forbidden", "Publishing is disabled on this gateway",
+                       {"details": "start the gateway with --allow-publish to enable PUT"})
+    token = cfg.api_token
+    if not token:
+        return
+    scheme, _, given = request.headers.get("Authorization", "").partition(" ")
+    given = given.strip()
+    if scheme.lower() != "bearer" or not given:
+        raise ApiError(401, "unauthorized", "Authentication required",
+                       {"details": "send the header 'Authorization: Bearer <token>'"},
+                       headers={"WWW-Authenticate": 'Bearer realm="sovd-gateway"'})
+    if not hmac.compare_digest(given.encode("utf-8", "surrogateescape"), token.encode("utf-8")):
+        raise ApiError(403, "forbidden", "Invalid API token")
+
+
+def _field_error(message: str, field: str) -> ApiError:
+    return ApiError(400, "invalid-request", message, {"field": field})
+
+
+def _read_body() -> bytes:
+    """The request body; 413 past ``MAX_CONTENT_LENGTH``, with or without a Content-Length.
+
+    With a Content-Length Werkzeug refuses an oversized body before reading
+    it.  Without one (a chunked upload) Werkzeug would silently cut the body
+    at the limit, so one byte more than the limit is read to tell.
+    """
+    if request.content_length is not None:
+        return request.get_data(cache=False)
+    limit = current_app.config["MAX_CONTENT_LENGTH"]
+    stream = request.environ.get("wsgi.input")
+    if stream is None or not request.environ.get("wsgi.input_terminated"):
+        return b""  # the server cannot say where an unsized body ends: treat it as empty
+    chunks, size = [], 0
+    while size <= limit:
+        chunk = stream.read(limit + 1 - size)
+        if not chunk:
+            break
+        chunks.append(chunk)
+        size += len(chunk)
+    if size > limit:
+        raise RequestEntityTooLarge()
+    return b"".join(chunks)
+
+
+def publish_body() -> tuple[str, dict[str, Any]]:
+    """``(type, data)`` of a PUT body, or the contract's 400/413."""
+    raw = _read_body()
+    try:
+        body = orjson.loads(raw)
+    except orjson.JSONDecodeError as exc:
+        raise ApiError(400, "invalid-request", "Request body is not valid JSON",
+                       {"details": str(exc)}) from None
+    if not isinstance(body, dict):
+        raise ApiError(400, "invalid-request", "Request body must be a JSON object",
+                       {"details": 'expected {"type": "pkg/msg/Name", "data": {...}}'})
+    if "type" not in body:
+        raise _field_error("type: missing required field", "type")
+    if not isinstance(body["type"], str):
+        raise _field_error("type: must be a string", "type")
+    if "data" not in body:
+        raise _field_error("data: missing required field", "data")
+    if not isinstance(body["data"], dict):
+        raise _field_error("data: must be an object", "data")
+    type_name = body["type"]
+    if len(type_name) > MAX_TYPE_LENGTH or type_name.count("/") != 2 \
+            or not _MESSAGE_TYPE.fullmatch(type_name):
+        raise ApiError(400, "invalid-parameter", "Invalid message type format",
+                       {"details": "Message type should be in format: package/msg/Type",
+                        "type": type_name[:300]})
+    data = body["data"]
+    try:
+        size = len(protocol.pack(data))
+    except (ValueError, TypeError, OverflowError) as exc:
+        raise ApiError(400, "invalid-request", "data: cannot be sent to ROS",
+                       {"details": str(exc)[:300]}) from None
+    if size > protocol.MAX_FRAME - FRAME_SLACK:
+        raise ApiError(413, "payload-too-large", "Message too large to publish",
+                       {"details": f"the encoded message is {size} bytes; the limit is "
+                                   f"{protocol.MAX_FRAME - FRAME_SLACK}"})
+    return type_name, data

@@ -1,0 +1,109 @@
+"""``GET /api/v1/``, ``/version-info``, ``/health`` and ``/docs``."""
+
+from __future__ import annotations
+
+import time
+from importlib import metadata
+from typing import Any
+
+from flask import Blueprint
+
+from .. import openapi, rosclient
+from ..entities import API_BASE
+from .common import config, json_response
+
+bp = Blueprint("root", __name__, url_prefix=API_BASE)
+
+NAME = "sovd-gateway"
+SOVD_VERSION = "1.0.0"
+
+# The contract's counters, in its order: what /health shows while the ROS worker is down
+# and no answer was ever received.
+DATA_PROVIDER_KEYS = (
+    "pool_size", "pool_cap", "pool_hits", "pool_misses", "evictions_total", "type_change_events",
+    "graph_events_received", "concurrent_cold_waits", "cold_wait_cap", "unsupported_type_count",
+)
+EXECUTOR_KEYS = (
+    "worker_alive", "degraded", "queue_depth", "queue_max_depth_observed", "queue_dropped",
+    "tasks_completed", "tasks_failed", "last_task_latency_us", "max_task_latency_us",
+    "current_task_age_ms", "watchdog_trips", "graph_events_received",
+)
+
+
+def package_version() -> str:
+    try:
+        return metadata.version(NAME)
+    except metadata.PackageNotFoundError:
+        return "0.0.0"
+
+
+@bp.get("/")
+def root():
+    cfg = config()
+    return json_response({
+        "name": NAME,
+        "version": package_version(),
+        "api_base": API_BASE,
+        "endpoints": openapi.endpoint_list(),
+        "capabilities": {
+            "discovery": True,
+            "data_access": True,
+            "publishing": bool(cfg.allow_publish),
+            "authentication": bool(cfg.api_token),
+            "docs": True,
+        },
+    })
+
+
+@bp.get("/version-info")
+def version_info():
+    return json_response({"items": [{
+        "version": SOVD_VERSION,
+        "base_uri": API_BASE,
+        "vendor_info": {"name": NAME, "version": package_version()},
+    }]})
+
+
+@bp.get("/docs")
+def docs():
+    return json_response(openapi.document())
+
+
+@bp.get("/health")
+def health():
+    """Liveness and the ROS worker's counters; always 200, never waits on ROS work.
+
+    ``status``: ``healthy``; ``degraded`` while a ROS task has run past the
+    watchdog threshold; ``unhealthy`` while the ROS worker is down or does not
+    answer (then the counters are the last ones received, or zeros).
+    """
+    alive, stats = rosclient.get().stats()
+    provider, executor = _sections(stats)
+    executor["worker_alive"] = alive
+    if not alive:
+        status = "unhealthy"
+    elif executor.get("degraded"):
+        status = "degraded"
+    else:
+        status = "healthy"
+    return json_response({
+        "status": status,
+        "timestamp": time.time_ns(),
+        "discovery": {"mode": "runtime_only", "strategy": "runtime"},
+        "x-medkit-data-provider": provider,
+        "x-medkit-subscription-executor": executor,
+    })
+
+
+def _sections(stats: dict[str, Any] | None) -> tuple[dict[str, Any], dict[str, Any]]:
+    cfg = config()
+    provider: dict[str, Any] = {k: 0 for k in DATA_PROVIDER_KEYS}
+    provider.update(pool_cap=cfg.max_pool_size, cold_wait_cap=cfg.cold_wait_cap)
+    executor: dict[str, Any] = {k: 0 for k in EXECUTOR_KEYS}
+    executor.update(worker_alive=False, degraded=False)
+    if stats:
+        if isinstance(stats.get("data_provider"), dict):
+            provider.update(stats["data_provider"])
+        if isinstance(stats.get("executor"), dict):
+            executor.update(stats["executor"])
+    return provider, executor

@@ -1,0 +1,49 @@
+"""The Flask application factory; gunicorn loads ``app.wsgi:create_app()``.
+
+Nothing happens at import time.  ``create_app`` runs in each HTTP worker
+after gunicorn forked it; the ROS-worker client it sets up opens its ZeroMQ
+context only on first use (``app/rosclient.py``).  Settings come from
+``app.config.load()``: the supervisor hands them to gunicorn's workers as
+``SOVD_*`` environment variables.
+
+``test_config`` overrides settings by their name (``runtime_dir``,
+``allow_publish``, ``sample_timeout`` ...); any other key goes into
+``app.config`` (e.g. ``SOVD_HOSTNAME``, ``SOVD_GRAPH_REFRESH_S``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from flask import Flask
+
+from . import config as settings
+from . import errors, rosclient
+
+
+def create_app(test_config: dict[str, Any] | None = None) -> Flask:
+    app = Flask(__name__)
+    cfg = settings.load()
+    for key, value in (test_config or {}).items():
+        setting = settings.BY_NAME.get(key)
+        if setting is not None:
+            cfg[key] = setting.parse(value, "test_config")
+        else:
+            app.config[key] = value
+    app.config["SOVD"] = cfg
+    app.config["MAX_CONTENT_LENGTH"] = cfg.max_body_bytes
+    app.json.sort_keys = False
+
+    from .routes import common, data, discovery, root
+
+    # `data//a/b` must reach the data route as `/a/b`, not be redirected to `data/a/b`.
+    app.url_map.merge_slashes = False
+    app.url_map.converters["collection"] = common.CollectionConverter
+    app.url_map.converters["data_id"] = common.DataIdConverter
+
+    errors.init_app(app)
+    rosclient.init_app(app)
+    app.register_blueprint(root.bp)
+    app.register_blueprint(discovery.bp)
+    app.register_blueprint(data.bp)
+    return app
