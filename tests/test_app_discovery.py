@@ -1,0 +1,215 @@
+"""app/routes/discovery.py (and the graph cache of app/rosclient.py) against a fake ROS worker."""
+
+from __future__ import annotations
+
+import platform
+from urllib.parse import unquote
+
+import pytest
+
+from tests.support.fakeworker import ROBOT, FakeWorker, make_app, node
+
+
+@pytest.fixture
+def fw():
+    with FakeWorker() as worker:
+        worker.set_graph(list(ROBOT))
+        yield worker
+
+
+@pytest.fixture
+def client(fw):
+    return make_app(fw).test_client()
+
+
+def test_areas_are_empty(client):
+    r = client.get("/api/v1/areas")
+    assert r.status_code == 200
+    assert r.headers["Content-Type"] == "application/json"
+    assert r.get_json() == {"items": [], "x-medkit": {"total_count": 0}}
+
+
+def test_components_is_the_host(client):
+    body = client.get("/api/v1/components").get_json()
+    assert body["x-medkit"] == {"total_count": 1}
+    (host,) = body["items"]
+    assert host["id"] == "test-robot" and host["name"] == "test-robot"
+    assert host["href"] == "/api/v1/components/test-robot" and host["type"] == "component"
+    assert host["description"].endswith(" on " + platform.machine())
+    assert host["x-medkit"] == {"source": "runtime"}
+
+
+def test_apps_listing(client):
+    body = client.get("/api/v1/apps").get_json()
+    assert [i["id"] for i in body["items"]] == ["controller", "pressure_sensor", "temp_sensor"]
+    assert body["x-medkit"] == {"total_count": 3}
+    temp = body["items"][2]
+    assert temp == {"id": "temp_sensor", "name": "temp_sensor", "href": "/api/v1/apps/temp_sensor",
+                    "type": "app", "x-medkit": {"source": "heuristic", "is_online": True,
+                                                "component_id": "test-robot",
+                                                "ros2": {"node": "/powertrain/engine/temp_sensor"}}}
+
+
+def test_functions_listing(client):
+    body = client.get("/api/v1/functions").get_json()
+    assert [(i["id"], i["name"], i["hosts"]) for i in body["items"]] == [
+        ("body", "body", ["controller"]), ("chassis", "chassis", ["pressure_sensor"]),
+        ("powertrain", "powertrain", ["temp_sensor"])]
+    assert body["items"][0]["href"] == "/api/v1/functions/body"
+    assert body["items"][0]["x-medkit"]["source"] == "runtime"
+
+
+def test_app_detail(client):
+    r = client.get("/api/v1/apps/temp_sensor")
+    assert r.status_code == 200
+    d = r.get_json()
+    assert d["id"] == "temp_sensor" and d["type"] == "app"
+    assert d["data"] == "/api/v1/apps/temp_sensor/data"
+    assert d["is-located-on"] == "/api/v1/components/test-robot"
+    assert {"name": "data", "href": "/api/v1/apps/temp_sensor/data"} in d["capabilities"]
+    assert d["_links"] == {"self": "/api/v1/apps/temp_sensor", "collection": "/api/v1/apps",
+                           "is-located-on": "/api/v1/components/test-robot"}
+    assert d["x-medkit"]["ros2"] == {"node": "/powertrain/engine/temp_sensor"}
+
+
+def test_component_and_function_details(client):
+    c = client.get("/api/v1/components/test-robot").get_json()
+    assert c["id"] == "test-robot" and c["type"] == "component" and c["data"].endswith("/data")
+    assert c["_links"]["self"] == "/api/v1/components/test-robot"
+    f = client.get("/api/v1/functions/powertrain").get_json()
+    assert f["hosts"] == ["temp_sensor"] and f["type"] == "function"
+
+
+def test_is_located_on(client):
+    r = client.get("/api/v1/apps/temp_sensor/is-located-on")
+    assert r.status_code == 200
+    (host,) = r.get_json()["items"]
+    assert host["id"] == "test-robot" and host["type"] == "component"
+
+
+@pytest.mark.parametrize("bad, detail", [
+    ("a.b", "'.'"), ("a%20b", "' '"), ("x" * 257, "longer than 256"), ("%C3%A9t%C3%A9", "'é'"),
+])
+@pytest.mark.parametrize("collection", ["areas", "components", "apps", "functions"])
+def test_invalid_entity_id(client, fw, collection, bad, detail):
+    before = len(fw.requests)
+    r = client.get(f"/api/v1/{collection}/{bad}")
+    assert r.status_code == 400
+    body = r.get_json()
+    assert body["error_code"] == "invalid-parameter" and body["message"] == "Invalid entity ID"
+    assert detail in body["parameters"]["details"]
+    assert body["parameters"]["entity_id"] == unquote(bad)
+    assert len(fw.requests) == before  # nothing asked of the ROS worker
+
+
+def test_longest_valid_id_is_a_404(client):
+    r = client.get("/api/v1/apps/" + "x" * 256)
+    assert r.status_code == 404
+
+
+@pytest.mark.parametrize("path", ["/api/v1/apps/nope", "/api/v1/components/nope", "/api/v1/functions/nope",
+                                  "/api/v1/areas/nope", "/api/v1/apps/nope/is-located-on",
+                                  "/api/v1/apps/nope/data", "/api/v1/components/nope/data/x/y"])
+def test_unknown_entity(client, path):
+    r = client.get(path)
+    assert r.status_code == 404
+    assert r.get_json() == {"error_code": "entity-not-found", "message": "Entity not found",
+                            "parameters": {"entity_id": "nope"}}
+
+
+@pytest.mark.parametrize("path, expected, actual", [
+    ("/api/v1/components/temp_sensor", "Component", "App"),
+    ("/api/v1/apps/test-robot", "App", "Component"),
+    ("/api/v1/apps/powertrain", "App", "Function"),
+    ("/api/v1/functions/temp_sensor", "Function", "App"),
+    ("/api/v1/areas/powertrain", "Area", "Function"),
+    ("/api/v1/components/temp_sensor/data", "Component", "App"),
+    ("/api/v1/functions/temp_sensor/data/powertrain/engine/temperature", "Function", "App"),
+])
+def test_id_of_another_type(client, path, expected, actual):
+    r = client.get(path)
+    assert r.status_code == 400
+    body = r.get_json()
+    assert body["error_code"] == "invalid-parameter"
+    assert body["parameters"]["entity_id"] == path.split("/")[4]
+    assert body["parameters"]["expected_type"] == expected
+    assert body["parameters"]["actual_type"] == actual
+
+
+def test_is_located_on_only_for_apps(client):
+    r = client.get("/api/v1/components/test-robot/is-located-on")
+    assert r.status_code == 404 and r.get_json()["error_code"] == "resource-not-found"
+
+
+def test_node_names_in_several_namespaces(client, fw):
+    fw.set_graph([node("/left/wheel/driver"), node("/right/wheel/driver"), node("/imu")])
+    ids = [i["id"] for i in client.get("/api/v1/apps").get_json()["items"]]
+    assert ids == ["imu", "left_wheel_driver", "right_wheel_driver"]
+    d = client.get("/api/v1/apps/left_wheel_driver").get_json()
+    assert d["name"] == "driver" and d["x-medkit"]["ros2"]["node"] == "/left/wheel/driver"
+
+
+def test_hidden_nodes_are_not_apps(client, fw):
+    fw.set_graph([node("/_ros2cli_daemon"), node("/tools/_helper"), node("/visible")])
+    ids = [i["id"] for i in client.get("/api/v1/apps").get_json()["items"]]
+    assert ids == ["visible"]
+    assert client.get("/api/v1/apps/_helper").status_code == 404
+
+
+def test_graph_changes_show_up_and_generation_is_used(client, fw):
+    assert len(client.get("/api/v1/apps").get_json()["items"]) == 3
+    assert len(client.get("/api/v1/apps").get_json()["items"]) == 3
+    graph_calls = fw.calls("graph")
+    # The second ask carries the generation the cache holds.
+    assert graph_calls[-1] == {"since": fw.generation}
+    fw.set_graph(list(ROBOT) + [node("/powertrain/gearbox/controller2")])
+    ids = [i["id"] for i in client.get("/api/v1/apps").get_json()["items"]]
+    assert "controller2" in ids
+    fw.set_graph(list(ROBOT[:1]))
+    ids = [i["id"] for i in client.get("/api/v1/apps").get_json()["items"]]
+    assert ids == ["temp_sensor"]
+    assert client.get("/api/v1/apps/controller2").status_code == 404
+
+
+def test_graph_is_asked_at_most_once_per_refresh_interval(fw):
+    client = make_app(fw, SOVD_GRAPH_REFRESH_S=60.0).test_client()
+    for _ in range(20):
+        assert client.get("/api/v1/apps").status_code == 200
+        assert client.get("/api/v1/apps/temp_sensor").status_code == 200
+    assert len(fw.calls("graph")) == 1
+
+
+def test_no_ros_worker_gives_503_with_retry_after(tmp_path):
+    client = make_app(runtime_dir=str(tmp_path)).test_client()
+    r = client.get("/api/v1/apps")
+    assert r.status_code == 503
+    assert r.headers["Retry-After"] == "2"
+    body = r.get_json()
+    assert body["error_code"] == "vendor-error"
+    assert body["vendor_code"] == "x-medkit-ros-worker-unavailable"
+
+
+def test_silent_worker_on_graph_gives_504(fw):
+    fw.silent.add("graph")
+    client = make_app(fw, ipc_timeout=0.3).test_client()
+    r = client.get("/api/v1/components")
+    assert r.status_code == 504
+    assert r.get_json()["error_code"] == "not-responding"
+
+
+def test_busy_worker_serves_the_cached_graph(fw):
+    client = make_app(fw, ipc_timeout=0.3).test_client()
+    assert client.get("/api/v1/apps").status_code == 200
+    fw.silent.add("graph")
+    r = client.get("/api/v1/apps")
+    assert r.status_code == 200 and len(r.get_json()["items"]) == 3
+
+
+def test_malformed_graph_answer_is_a_500_without_details(fw):
+    fw.nodes = "not a list"  # the worker answers nonsense
+    client = make_app(fw).test_client()
+    r = client.get("/api/v1/apps")
+    assert r.status_code == 500
+    body = r.get_json()
+    assert body["error_code"] == "internal-error"
+    assert "Traceback" not in r.get_data(as_text=True)

@@ -1,0 +1,159 @@
+"""Root overview, version-info, health, docs, and the JSON error handlers (app/errors.py)."""
+
+from __future__ import annotations
+
+import logging
+import re
+import time
+
+import pytest
+
+from app import openapi
+from tests.support.fakeworker import ROBOT, STATS, FakeWorker, make_app
+
+
+@pytest.fixture
+def fw():
+    with FakeWorker() as worker:
+        worker.set_graph(list(ROBOT))
+        yield worker
+
+
+@pytest.fixture
+def client(fw):
+    return make_app(fw).test_client()
+
+
+def test_root(client):
+    r = client.get("/api/v1/")
+    assert r.status_code == 200
+    body = r.get_json()
+    assert body["name"] == "sovd-gateway"
+    assert re.match(r"^\d+\.\d+\.\d+", body["version"])
+    assert body["api_base"] == "/api/v1"
+    assert "GET /api/v1/health" in body["endpoints"]
+    assert "PUT /api/v1/components/{component_id}/data/{data_id}" in body["endpoints"]
+    assert "GET /api/v1/apps/{app_id}/is-located-on" in body["endpoints"]
+    assert body["endpoints"] == openapi.endpoint_list()
+    caps = body["capabilities"]
+    assert caps["discovery"] is True and caps["data_access"] is True and caps["publishing"] is False
+    assert all(isinstance(v, bool) for v in caps.values())
+
+
+def test_root_reflects_allow_publish(fw):
+    body = make_app(fw, allow_publish=True).test_client().get("/api/v1/").get_json()
+    assert body["capabilities"]["publishing"] is True
+
+
+def test_version_info(client):
+    body = client.get("/api/v1/version-info").get_json()
+    (item,) = body["items"]
+    assert item["version"] == "1.0.0" and item["base_uri"] == "/api/v1"
+    assert item["vendor_info"]["name"] == "sovd-gateway" and item["vendor_info"]["version"]
+
+
+def test_health_with_live_worker(client):
+    r = client.get("/api/v1/health")
+    assert r.status_code == 200
+    body = r.get_json()
+    assert body["status"] == "healthy"
+    assert isinstance(body["timestamp"], int) and body["timestamp"] > 1_600_000_000 * 10**9
+    assert body["discovery"] == {"mode": "runtime_only", "strategy": "runtime"}
+    assert body["x-medkit-data-provider"] == STATS["data_provider"]
+    assert body["x-medkit-subscription-executor"] == STATS["executor"]
+
+
+def test_health_degraded(client, fw):
+    fw.stats["executor"]["degraded"] = True
+    body = client.get("/api/v1/health").get_json()
+    assert body["status"] == "degraded"
+    assert body["x-medkit-subscription-executor"]["degraded"] is True
+    assert body["x-medkit-subscription-executor"]["worker_alive"] is True
+
+
+def test_health_without_worker_answers_at_once(tmp_path):
+    client = make_app(runtime_dir=str(tmp_path), max_pool_size=99, cold_wait_cap=7).test_client()
+    start = time.monotonic()
+    r = client.get("/api/v1/health")
+    assert time.monotonic() - start < 5  # generous: it must not wait for an IPC timeout
+    assert r.status_code == 200
+    body = r.get_json()
+    assert body["status"] == "unhealthy"
+    executor = body["x-medkit-subscription-executor"]
+    assert executor["worker_alive"] is False and executor["degraded"] is False
+    assert set(executor) == set(STATS["executor"])
+    provider = body["x-medkit-data-provider"]
+    assert set(provider) == set(STATS["data_provider"])
+    assert provider["pool_cap"] == 99 and provider["cold_wait_cap"] == 7 and provider["pool_hits"] == 0
+
+
+def test_health_keeps_last_known_counters_when_worker_dies(fw):
+    client = make_app(fw).test_client()
+    assert client.get("/api/v1/health").get_json()["x-medkit-subscription-executor"]["worker_alive"]
+    fw.stop()
+    body = client.get("/api/v1/health").get_json()
+    assert body["status"] == "unhealthy"
+    assert body["x-medkit-subscription-executor"]["worker_alive"] is False
+    assert body["x-medkit-subscription-executor"]["tasks_completed"] == STATS["executor"]["tasks_completed"]
+    assert body["x-medkit-data-provider"]["pool_hits"] == STATS["data_provider"]["pool_hits"]
+
+
+def test_health_with_worker_not_answering(fw):
+    fw.silent.add("stats")
+    client = make_app(fw).test_client()
+    start = time.monotonic()
+    body = client.get("/api/v1/health").get_json()
+    assert time.monotonic() - start < 5
+    assert body["x-medkit-subscription-executor"]["worker_alive"] is False
+
+
+def test_docs_is_openapi_31(client):
+    r = client.get("/api/v1/docs")
+    assert r.status_code == 200
+    doc = r.get_json()
+    assert doc["openapi"].startswith("3.1")
+    assert "/apps/{app_id}/data/{data_id}" in doc["paths"]
+    params = doc["paths"]["/apps/{app_id}/data/{data_id}"]["get"]["parameters"]
+    assert any(p["name"] == "bytes" and p["in"] == "query" for p in params)
+    put = doc["paths"]["/components/{component_id}/data/{data_id}"]["put"]
+    assert {"401", "403", "413"} <= set(put["responses"])
+
+
+@pytest.mark.parametrize("path", ["/api/v1/nope", "/api/v2/", "/", "/api/v1/apps/x/y/z",
+                                  "/api/v1/robots/x"])
+def test_unmatched_route_is_json_404(client, path):
+    r = client.get(path)
+    assert r.status_code == 404
+    assert r.headers["Content-Type"] == "application/json"
+    body = r.get_json()
+    assert body["error_code"] == "resource-not-found"
+    assert body["message"] == "Resource not found"
+
+
+def test_405_is_json_with_allow(client):
+    r = client.delete("/api/v1/health")
+    assert r.status_code == 405
+    assert r.headers["Content-Type"] == "application/json"
+    assert "GET" in r.headers["Allow"]
+    assert r.get_json()["error_code"] == "invalid-request"
+
+
+def test_unexpected_error_is_500_without_traceback(fw, caplog):
+    app = make_app(fw)
+
+    def boom():
+        raise RuntimeError("secret internal detail")
+
+    app.add_url_rule("/api/v1/boom", view_func=boom)
+    with caplog.at_level(logging.ERROR):
+        r = app.test_client().get("/api/v1/boom")
+    assert r.status_code == 500
+    assert r.get_json() == {"error_code": "internal-error", "message": "Internal server error"}
+    assert "secret" not in r.get_data(as_text=True)
+    assert any("secret internal detail" in (rec.exc_text or "") or rec.exc_info for rec in caplog.records)
+
+
+def test_error_bodies_leave_out_empty_parameters(client, fw):
+    fw.stop()
+    body = client.get("/api/v1/apps").get_json()
+    assert "parameters" not in body
