@@ -70,8 +70,8 @@ def check(doc, method: str, path: str, response) -> str:
 
 
 def test_schemas_are_valid_json_schema(doc):
-    for name, schema in doc["components"]["schemas"].items():
-        jsonschema.Draft202012Validator.check_schema(schema), name
+    for schema in doc["components"]["schemas"].values():
+        jsonschema.Draft202012Validator.check_schema(schema)  # raises, naming the problem
     assert doc["openapi"] == "3.1.0"
 
 

@@ -1,0 +1,292 @@
+"""End to end: the real ``sovd-gateway`` (supervisor, ROS worker, gunicorn) and real ROS nodes.
+
+Nothing of ours is mocked here.  The ROS nodes run in their own processes
+(``tests/support/rospub.py``) in this session's private ROS domain.
+"""
+
+from __future__ import annotations
+
+import http.client
+import json
+import os
+import signal
+
+import psutil
+import pytest
+
+from app.entities import host_component_id
+from tests.support.gateway import Gateway
+from tests.support.procs import RosNode, poll_until, publisher
+
+TEMP = "/powertrain/engine/temperature"
+PRESSURE = "/chassis/brakes/pressure"
+TOKEN = "e2e-token-0123456789abcdef"
+HOST_ID = host_component_id(os.uname().nodename)
+
+
+@pytest.fixture(scope="module")
+def robot():
+    nodes = [
+        publisher("temp_sensor", "temperature", "sensor_msgs/msg/Temperature",
+                  {"temperature": 93.5, "variance": 0.5, "header": {"frame_id": "engine"}},
+                  namespace="/powertrain/engine"),
+        publisher("pressure_sensor", "pressure", "std_msgs/msg/Float32", {"data": 7.25},
+                  namespace="/chassis/brakes"),
+        RosNode({"node": "controller", "namespace": "/body/lights",
+                 "publish": [{"topic": "state", "type": "std_msgs/msg/Bool", "rate": 5, "value": {"data": True}}],
+                 "subscribe": [{"topic": "cmd", "type": "std_msgs/msg/Bool", "echo": True}]}),
+        RosNode({"node": "driver", "namespace": "/left/wheel"}),
+        RosNode({"node": "driver", "namespace": "/right/wheel"}),
+    ]
+    yield {"temp": nodes[0], "pressure": nodes[1], "controller": nodes[2]}
+    for n in nodes:
+        n.stop()
+
+
+@pytest.fixture(scope="module")
+def gw(robot):
+    gateway = Gateway("--allow-publish", "--api-token", TOKEN, "--sample-timeout", "3")
+    yield gateway
+    gateway.stop()
+
+
+def app_ids(gw) -> list[str]:
+    r = gw.get("/apps")
+    assert r.status_code == 200, r.text
+    return [i["id"] for i in r.json()["items"]]
+
+
+def settled(predicate, timeout: float = 30, message: str = "condition", times: int = 5):
+    """Poll until ``predicate`` holds ``times`` times in a row, 0.1 s apart.
+
+    Each HTTP worker process refreshes its graph cache at most every 0.2 s, so
+    one answer that shows a change may come from a fresher process than the
+    next; holding for half a second means every process has caught up.
+    """
+    streak = {"n": 0, "value": None}
+
+    def check():
+        value = predicate()
+        streak["n"] = streak["n"] + 1 if value else 0
+        streak["value"] = value
+        return streak["n"] >= times
+
+    poll_until(check, timeout, interval=0.1, message=message)
+    return streak["value"]
+
+
+def wait_for_apps(gw, wanted: set[str], timeout: float = 30) -> list[str]:
+    return settled(lambda: wanted <= set(ids := app_ids(gw)) and ids, timeout, message=f"apps {sorted(wanted)}")
+
+
+def sample(gw, path: str) -> dict:
+    r = gw.get(path)
+    assert r.status_code == 200, r.text
+    return r.json()
+
+
+def wait_for_data(gw, path: str, timeout: float = 30) -> dict:
+    return poll_until(lambda: (b := sample(gw, path))["x-medkit"]["status"] == "data" and b, timeout,
+                      message=f"data at {path}")
+
+
+def raw_get(gw, path: str) -> tuple[int, dict]:
+    """GET with the path sent exactly as written (no client-side re-quoting)."""
+    conn = http.client.HTTPConnection("127.0.0.1", gw.port, timeout=15)
+    try:
+        conn.request("GET", path)
+        resp = conn.getresponse()
+        return resp.status, json.loads(resp.read())
+    finally:
+        conn.close()
+
+
+# ------------------------------------------------------------------ discovery
+
+
+def test_entities_follow_the_ros_graph(gw):
+    ids = wait_for_apps(gw, {"temp_sensor", "pressure_sensor", "controller", "left_wheel_driver",
+                             "right_wheel_driver"})
+    assert not any(i.startswith("sovd_gateway") for i in ids)  # the gateway's own node is left out
+    comps = gw.get("/components").json()
+    assert [c["id"] for c in comps["items"]] == [HOST_ID]
+    assert gw.get("/areas").json() == {"items": [], "x-medkit": {"total_count": 0}}
+    funcs = {f["id"]: f for f in gw.get("/functions").json()["items"]}
+    assert {"powertrain", "chassis", "body", "left", "right"} <= set(funcs)
+    assert funcs["powertrain"]["hosts"] == ["temp_sensor"]
+    detail = gw.get("/apps/temp_sensor").json()
+    assert detail["x-medkit"]["ros2"]["node"] == "/powertrain/engine/temp_sensor"
+    assert detail["is-located-on"] == f"/api/v1/components/{HOST_ID}"
+    located = gw.get("/apps/temp_sensor/is-located-on").json()
+    assert located["items"][0]["id"] == HOST_ID
+
+
+def test_id_rules(gw):
+    wait_for_apps(gw, {"temp_sensor"})
+    r = gw.get("/components/temp_sensor")
+    assert r.status_code == 400
+    assert r.json()["parameters"]["expected_type"] == "Component"
+    assert r.json()["parameters"]["actual_type"] == "App"
+    assert gw.get("/apps/no_such_app").status_code == 404
+    assert gw.get("/apps/bad.id").json()["message"] == "Invalid entity ID"
+
+
+def test_data_items_of_an_app(gw):
+    wait_for_apps(gw, {"temp_sensor"})
+    body = gw.get("/apps/temp_sensor/data").json()
+    items = {i["id"]: i for i in body["items"]}
+    assert {TEMP, "/rosout", "/parameter_events"} <= set(items)
+    temp = items[TEMP]["x-medkit"]
+    assert temp["ros2"] == {"topic": TEMP, "type": "sensor_msgs/msg/Temperature", "direction": "publish"}
+    assert temp["type_info"]["schema"]["type"] == "object"
+    assert "temperature" in temp["type_info"]["default_value"]
+    comp = gw.get(f"/components/{HOST_ID}/data").json()
+    assert comp["x-medkit"]["aggregated"] is True
+    cmd = next(i for i in comp["items"] if i["id"] == "/body/lights/cmd")
+    assert cmd["x-medkit"]["member_ids"] == ["controller"]
+    assert cmd["x-medkit"]["ros2"]["direction"] == "subscribe"
+
+
+# ------------------------------------------------------------------ samples
+
+
+def test_sample_of_a_live_topic(gw):
+    wait_for_apps(gw, {"temp_sensor"})
+    body = wait_for_data(gw, "/apps/temp_sensor/data/powertrain/engine/temperature")
+    assert body["id"] == TEMP
+    data = body["data"]
+    assert data["temperature"] == 93.5 and isinstance(data["temperature"], float)
+    assert data["header"]["frame_id"] == "engine"
+    assert set(data["header"]["stamp"]) == {"sec", "nanosec"}
+    ext = body["x-medkit"]
+    assert ext["entity_id"] == "temp_sensor" and ext["publisher_count"] >= 1
+    assert ext["ros2"] == {"topic": TEMP, "type": "sensor_msgs/msg/Temperature"}
+    assert isinstance(ext["timestamp"], int)
+
+
+@pytest.mark.parametrize("path", [
+    "/api/v1/functions/chassis/data/chassis%2Fbrakes%2Fpressure",
+    "/api/v1/functions/chassis/data/chassis/brakes/pressure",
+    "/api/v1/functions/chassis/data//chassis/brakes/pressure",
+])
+def test_data_id_spellings_through_gunicorn(gw, path):
+    wait_for_apps(gw, {"pressure_sensor"})
+    body = poll_until(lambda: (b := raw_get(gw, path))[0] == 200 and b[1]["x-medkit"]["status"] == "data"
+                      and b[1], 30, message=path)
+    assert body["id"] == PRESSURE and body["data"] == {"data": 7.25}
+
+
+@pytest.mark.parametrize("path", ["/api/v1/functions/chassis/data/a%zz", "/api/v1/functions/chassis/data/a%00b",
+                                  "/api/v1/functions/chassis/data/1abc"])
+def test_invalid_topics_through_gunicorn(gw, path):
+    wait_for_apps(gw, {"pressure_sensor"})
+    status, body = raw_get(gw, path)
+    assert status == 400 and body["error_code"] == "invalid-parameter"
+
+
+def test_topic_not_in_graph_is_metadata_only(gw):
+    wait_for_apps(gw, {"temp_sensor"})
+    body = sample(gw, "/apps/temp_sensor/data/no/such/topic")
+    assert body["data"] == {} and body["x-medkit"]["status"] == "metadata_only"
+
+
+def test_bytes_base64(gw):
+    wait_for_apps(gw, {"temp_sensor"})
+    r = gw.get("/apps/temp_sensor/data/powertrain/engine/temperature", params={"bytes": "base64"})
+    assert r.status_code == 200
+    assert gw.get("/apps/temp_sensor/data/x", params={"bytes": "hex"}).status_code == 400
+
+
+# ------------------------------------------------------------------ publish
+
+
+def test_publish_reaches_a_subscriber(gw, robot):
+    wait_for_apps(gw, {"controller"})
+    url = "/apps/controller/data/body/lights/cmd"
+    body = {"type": "std_msgs/msg/Bool", "data": {"data": True}}
+    assert gw.put(url, json=body).status_code == 401
+    assert gw.put(url, json=body, headers={"Authorization": "Bearer wrong"}).status_code == 403
+    auth = {"Authorization": f"Bearer {TOKEN}"}
+
+    def delivered():
+        r = gw.put(url, json=body, headers=auth)
+        assert r.status_code == 200, r.text
+        assert r.json()["x-medkit"]["status"] == "published"
+        return any(m["topic"] == "/body/lights/cmd" and m["data"] == {"data": True}
+                   for m in robot["controller"].echoed())
+
+    poll_until(delivered, 30, interval=0.5, message="the controller to receive the published message")
+    r = gw.put(url, json={"type": "nope_msgs/msg/Missing", "data": {}}, headers=auth)
+    assert r.status_code == 400
+    r = gw.put(url, json={"type": "std_msgs/msg/Bool", "data": {"no_such_field": 1}}, headers=auth)
+    assert r.status_code == 400
+
+
+def test_publish_disabled_by_default(robot):
+    gateway = Gateway()
+    try:
+        r = gateway.put("/apps/controller/data/body/lights/cmd",
+                        json={"type": "std_msgs/msg/Bool", "data": {"data": True}})
+        assert r.status_code == 403 and r.json()["error_code"] == "forbidden"
+        assert gateway.get("/").json()["capabilities"]["publishing"] is False
+    finally:
+        gateway.stop()
+
+
+# ------------------------------------------------------------------ the graph changes
+
+
+def test_node_that_appears_and_leaves(gw):
+    wait_for_apps(gw, {"temp_sensor"})
+    extra = publisher("wiper", "state", "std_msgs/msg/Bool", {"data": False}, namespace="/body/wipers")
+    try:
+        wait_for_apps(gw, {"wiper"})
+    finally:
+        extra.stop()
+    settled(lambda: "wiper" not in app_ids(gw), 30, message="wiper to leave")
+
+
+# ------------------------------------------------------------------ health and the ROS worker dying
+
+
+def _rosworker_pid(gateway) -> int:
+    procs = psutil.Process(gateway.pid).children(recursive=True)
+    workers = [p for p in procs if any("rosworker" in part for part in p.cmdline())]
+    assert len(workers) == 1, [p.cmdline() for p in procs]
+    return workers[0].pid
+
+
+def test_rosworker_crash_is_503_then_recovers(robot):
+    gateway = Gateway("--sample-timeout", "2")
+    try:
+        wait_for_apps(gateway, {"pressure_sensor"})
+        path = "/functions/chassis/data/chassis/brakes/pressure"
+        wait_for_data(gateway, path)
+        health = gateway.get("/health").json()
+        assert health["status"] == "healthy"
+        assert health["x-medkit-subscription-executor"]["worker_alive"] is True
+
+        os.kill(_rosworker_pid(gateway), signal.SIGKILL)
+        seen = set()
+
+        def down_seen():
+            h = gateway.get("/health", timeout=5)
+            assert h.status_code == 200
+            if not h.json()["x-medkit-subscription-executor"]["worker_alive"]:
+                seen.add("health")
+            r = gateway.get(path, timeout=10)
+            assert r.status_code in (200, 503), r.text
+            if r.status_code == 503:
+                assert r.headers["Retry-After"]
+                assert r.json()["vendor_code"] in ("x-medkit-ros-worker-unavailable",
+                                                   "x-medkit-gateway-shutdown")
+                seen.add("503")
+            return seen
+
+        poll_until(down_seen, 20, interval=0.02, message="the HTTP side to notice the ROS worker is down")
+        # ... and the supervisor restarts it: data flows again.
+        poll_until(lambda: gateway.get("/health").json()["x-medkit-subscription-executor"]["worker_alive"],
+                   60, message="the ROS worker to come back")
+        wait_for_data(gateway, path, timeout=60)
+    finally:
+        gateway.stop()
