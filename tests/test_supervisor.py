@@ -263,6 +263,8 @@ def test_worker_killed_under_load_comes_back(temperature_pub):
         assert not bad, f"unexpected answers during the outage: {bad[:10]}"
         assert all(r[3] for r in results if r[2] == 503), "a 503 without Retry-After"
         assert after[-1][2] == 200
+        counts = {c: sum(1 for r in results if r[2] == c) for c in {r[2] for r in results}}
+        print(f"answers around the crash: {counts}")
         text = "\n".join(gw.output)
         assert f"ROS worker pid {old} was killed by SIGKILL" in text
         assert "(attempt 1/5)" in text
