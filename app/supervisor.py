@@ -370,10 +370,13 @@ class Supervisor:
             code = self._check_health()
             if code is not None:
                 return code
-        if self.is_running() and self.notifier.watchdog_interval and now >= self._next_watchdog:
+        interval = self.notifier.watchdog_interval
+        if self.is_running() and interval and now >= self._next_watchdog:
             if self.healthy:
                 self.notifier.watchdog()
-            self._next_watchdog = now + self.notifier.watchdog_interval
+                self._next_watchdog = now + interval
+            else:  # look again soon: ping as soon as the worker is healthy again
+                self._next_watchdog = now + min(interval, self._health_interval)
         return None
 
     def _http_died(self) -> int:
