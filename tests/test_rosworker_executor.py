@@ -1,0 +1,214 @@
+"""The ROS worker's single thread: cold-wait cap, watchdog, backpressure, shutdown, hostile IPC."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+import uuid
+
+import msgpack
+import pytest
+import zmq
+
+from ipc import protocol
+from ipc.errors import IpcError
+from tests.support.procs import RosNode, poll_until, publisher
+from tests.support.rosworker import RosWorker
+
+
+def unique(name: str) -> str:
+    return f"/t{uuid.uuid4().hex[:8]}/{name}"
+
+
+@pytest.fixture
+def nodes():
+    started: list = []
+    yield started
+    for node in started:
+        node.stop()
+
+
+def silent(topics: list[str]) -> RosNode:
+    """A node with publishers that exist in the graph but will not publish for a long time."""
+    return RosNode({"node": "silent", "publish": [
+        {"topic": t, "type": "std_msgs/msg/String", "rate": 0.001} for t in topics]})
+
+
+def test_cold_wait_cap_sheds_excess_cold_callers_while_warm_topics_answer(nodes):
+    cold = [unique(f"cold{i}") for i in range(3)]
+    warm = unique("warm")
+    nodes.append(silent(cold))
+    nodes.append(publisher("warm", warm, "std_msgs/msg/String", {"data": "w"}, rate=20))
+    worker = RosWorker(cold_wait_cap=2)
+    try:
+        worker.sample_data(warm)
+        poll_until(lambda: sum(t["name"] in cold for t in worker.call("graph")["topics"]) == 3, 10,
+                   message="silent publishers discovered")
+        answers: list = []
+        waiters = [threading.Thread(target=lambda t=t: answers.append(worker.sample(t, timeout_ms=4000)))
+                   for t in cold[:2]]
+        for t in waiters:
+            t.start()
+        poll_until(lambda: worker.stats()["data_provider"]["concurrent_cold_waits"] == 2, 5,
+                   message="two cold waiters")
+        started = time.monotonic()
+        with pytest.raises(IpcError) as info:
+            worker.sample(cold[2], timeout_ms=4000)
+        shed_after = time.monotonic() - started
+        assert info.value.code == "cold-wait-cap-exceeded"
+        assert info.value.status == 503
+        assert info.value.params == {"topic": cold[2], "cold_wait_cap": 2}
+        assert info.value.retry_after
+        assert shed_after < 2.0  # at once, not after the 4 s sample timeout
+        assert worker.sample(warm)["status"] == "data"     # warm reads are unaffected
+        assert worker.stats()["executor"]["worker_alive"]  # and so are stats
+        for t in waiters:
+            t.join(15)
+        assert [a["reason"] for a in answers] == ["timeout", "timeout"]
+        assert worker.stats()["data_provider"]["concurrent_cold_waits"] == 0
+    finally:
+        worker.stop()
+
+
+def test_watchdog_trips_once_per_episode_and_clears_when_idle():
+    worker = RosWorker(watchdog_threshold=200, debug_commands=True)
+    try:
+        done = threading.Thread(target=lambda: worker.call("debug_sleep", {"seconds": 1.5}, timeout=10))
+        done.start()
+        poll_until(lambda: worker.stats()["executor"]["degraded"], 5, message="degraded")
+        busy = worker.stats()["executor"]   # readable while the ROS thread is stuck
+        assert busy["watchdog_trips"] == 1
+        assert busy["current_task_age_ms"] >= 200
+        done.join(10)
+        poll_until(lambda: not worker.stats()["executor"]["degraded"], 5, message="degraded cleared")
+        after = worker.stats()["executor"]
+        assert after["watchdog_trips"] == 1
+        assert after["max_task_latency_us"] >= 1_400_000
+    finally:
+        worker.stop()
+
+
+def test_full_queue_answers_backpressure_at_once_and_counts_drops():
+    worker = RosWorker(max_queue_depth=2, debug_commands=True)
+    try:
+        blocker = threading.Thread(target=lambda: worker.call("debug_sleep", {"seconds": 2}, timeout=10))
+        blocker.start()
+        poll_until(lambda: worker.stats()["executor"]["current_task_age_ms"] > 0, 5, message="busy")
+        outcomes: list = []
+
+        def one():
+            try:
+                outcomes.append(worker.call("pool", timeout=10))
+            except IpcError as exc:
+                outcomes.append(exc)
+
+        callers = [threading.Thread(target=one) for _ in range(6)]
+        for t in callers:
+            t.start()
+        for t in callers:
+            t.join(15)
+        blocker.join(10)
+        errors = [o for o in outcomes if isinstance(o, IpcError)]
+        assert len(outcomes) == 6
+        assert errors and all(e.code == "backpressure" and e.status == 503 for e in errors)
+        assert len(outcomes) - len(errors) == 2  # what fitted in the queue was served
+        executor = worker.stats()["executor"]
+        assert executor["queue_dropped"] == len(errors)
+        assert executor["queue_max_depth_observed"] == 2
+    finally:
+        worker.stop()
+
+
+def test_shutdown_wakes_waiters_drains_and_exits_zero(nodes):
+    topic = unique("never")
+    nodes.append(silent([topic]))
+    worker = RosWorker()
+    poll_until(lambda: any(t["name"] == topic for t in worker.call("graph")["topics"]), 10,
+               message="silent publisher discovered")
+    answers: list = []
+    waiter = threading.Thread(target=lambda: answers.append(worker.sample(topic, timeout_ms=20000)))
+    waiter.start()
+    poll_until(lambda: worker.stats()["data_provider"]["concurrent_cold_waits"] == 1, 5,
+               message="cold waiter")
+    started = time.monotonic()
+    code = worker.stop(timeout=10)
+    waiter.join(10)
+    assert code == 0
+    assert time.monotonic() - started < 10
+    assert answers and answers[0]["status"] == "metadata_only"
+    assert answers[0]["reason"] == "shutdown"
+
+
+def test_second_worker_on_the_same_runtime_dir_refuses_to_start():
+    worker = RosWorker()
+    try:
+        second = RosWorker(runtime_dir=worker.runtime_dir, wait=False)
+        assert second.proc.wait(30) == 3
+        assert any("already serves" in line for line in second.output)
+        assert worker.call("ping")["pid"] == worker.pid   # the socket was not stolen
+    finally:
+        worker.stop()
+
+
+def test_runtime_dir_and_socket_are_private():
+    worker = RosWorker()
+    try:
+        assert os.stat(worker.runtime_dir).st_mode & 0o777 == 0o700
+        sock = os.path.join(worker.runtime_dir, protocol.SOCKET_NAME)
+        assert os.stat(sock).st_mode & 0o077 == 0
+    finally:
+        worker.stop()
+
+
+def test_hostile_ipc_frames_get_an_error_or_are_dropped_and_the_worker_keeps_serving():
+    worker = RosWorker()
+    ctx = zmq.Context()
+    sock = ctx.socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.connect(protocol.endpoint(worker.runtime_dir))
+
+    def ask(frames, expect_reply: bool):
+        sock.send_multipart(frames)
+        if sock.poll(2000 if expect_reply else 300):
+            return protocol.unpack(sock.recv(), protocol.MAX_REPLY_FRAME)
+        return None
+
+    try:
+        dropped = [
+            [b"\x00\xff garbage"],
+            [b""],
+            [msgpack.packb([1, 2, 3])],
+            [msgpack.packb({"v": 1, "cmd": "ping"})],            # no id
+            [msgpack.packb({"v": 1, "id": "x", "cmd": "ping"})],  # id not an int
+            [msgpack.packb({"v": 1, "id": 1, "cmd": "ping"})[:-3]],  # truncated
+            [b"a", b"b", b"c"],                                  # extra frames
+        ]
+        for frames in dropped:
+            assert ask(frames, expect_reply=False) is None
+        answered = {
+            "unsupported-version": {"v": 99, "id": 7, "cmd": "ping"},
+            "unknown-command": {"v": 1, "id": 8, "cmd": "rm -rf", "args": {}},
+            "bad-request": {"v": 1, "id": 9, "cmd": "sample", "args": [], "deadline_ms": 100},
+            "invalid-topic": {"v": 1, "id": 10, "cmd": "sample", "args": {"topic": "../etc\x00"},
+                              "deadline_ms": 1000},
+        }
+        for code, request in answered.items():
+            reply = ask([msgpack.packb(request)], expect_reply=True)
+            assert reply["id"] == request["id"] and reply["ok"] is False
+            assert reply["error"]["code"] == code, reply
+        bad_deadline = {"v": 1, "id": 11, "cmd": "pool", "args": {}, "deadline_ms": -5}
+        assert ask([msgpack.packb(bad_deadline)], expect_reply=True)["error"]["code"] == "bad-request"
+        # An oversized frame: zmq drops the connection of a peer that sends one.
+        big = ctx.socket(zmq.DEALER)
+        big.setsockopt(zmq.LINGER, 0)
+        big.connect(protocol.endpoint(worker.runtime_dir))
+        big.send(b"\x00" * (protocol.MAX_FRAME + 10))
+        big.close()
+        assert worker.call("ping")["pid"] == worker.pid
+        assert worker.stats()["details"]["ipc_dropped_frames"] >= 6
+        assert worker.proc.poll() is None
+    finally:
+        sock.close()
+        ctx.term()
+        worker.stop()
