@@ -55,7 +55,8 @@ class Setting:
             return "one of " + ", ".join(self.choices)
         if self.low is None:
             return ""
-        text = f"{self.low:g}–{self.high:g}"
+        fmt = (lambda x: str(int(x))) if self.kind is int else (lambda x: f"{x:g}")
+        text = f"{fmt(self.low)}–{fmt(self.high)}"
         if self.zero_means:
             text += f", or 0 = {self.zero_means}"
         return text
