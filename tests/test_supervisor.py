@@ -25,6 +25,7 @@ from tests.support.procs import Proc, free_port, poll_until, publisher
 
 BIN = Path(sys.executable).parent
 TOPIC = "/sup_test/temperature"
+CRASH_WINDOW = 0.25  # s after a SIGKILL during which a request may still be sent to the dead worker
 
 
 # ---- helpers ----------------------------------------------------------------------------------
@@ -254,10 +255,13 @@ def test_worker_killed_under_load_comes_back(temperature_pub):
         assert not any(t.is_alive() for t in threads), "an HTTP request hung"
         # Hang catcher only: a read is bounded by sample_timeout plus the IPC margin.
         assert max(end - start for start, end, _, _ in results) < 15
-        # A request sent to the worker that was killed was lost with it: it may end in a
-        # structured 504 at its deadline.  Every request made after the kill gets 503 or 200.
-        in_flight = [r for r in results if r[0] < killed_at]
-        after = [r for r in results if r[0] >= killed_at]
+        # A request that reached the worker before it died was lost with it; it ends in a
+        # structured 504 at its deadline (the IPC client cannot tell "lost in a crash" from
+        # "slow" once the new worker is up).  That covers requests sent until the HTTP
+        # worker's socket noticed the dead peer, a few ms after the kill: CRASH_WINDOW is
+        # that classification, not a performance figure.  Every later request gets 503 or 200.
+        in_flight = [r for r in results if r[0] < killed_at + CRASH_WINDOW]
+        after = [r for r in results if r[0] >= killed_at + CRASH_WINDOW]
         assert not [r for r in in_flight if r[2] not in (200, 503, 504)], in_flight
         bad = [r[2] for r in after if r[2] not in (200, 503)]
         assert not bad, f"unexpected answers during the outage: {bad[:10]}"
