@@ -32,7 +32,6 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
             app.config[key] = value
     app.config["SOVD"] = cfg
     app.config["MAX_CONTENT_LENGTH"] = cfg.max_body_bytes
-    app.json.sort_keys = False
 
     from .routes import common, data, discovery, root
 

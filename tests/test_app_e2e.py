@@ -153,15 +153,15 @@ def test_data_items_of_an_app(gw):
 def test_sample_of_a_live_topic(gw):
     wait_for_apps(gw, {"temp_sensor"})
     body = wait_for_data(gw, "/apps/temp_sensor/data/powertrain/engine/temperature")
-    assert body["id"] == TEMP
+    assert body["id"] == TEMP, body
     data = body["data"]
-    assert data["temperature"] == 93.5 and isinstance(data["temperature"], float)
-    assert data["header"]["frame_id"] == "engine"
-    assert set(data["header"]["stamp"]) == {"sec", "nanosec"}
+    assert data["temperature"] == 93.5 and isinstance(data["temperature"], float), body
+    assert data["header"]["frame_id"] == "engine", body
+    assert set(data["header"]["stamp"]) == {"sec", "nanosec"}, body
     ext = body["x-medkit"]
-    assert ext["entity_id"] == "temp_sensor" and ext["publisher_count"] >= 1
-    assert ext["ros2"] == {"topic": TEMP, "type": "sensor_msgs/msg/Temperature"}
-    assert isinstance(ext["timestamp"], int)
+    assert ext["entity_id"] == "temp_sensor" and ext["publisher_count"] >= 1, body
+    assert ext["ros2"] == {"topic": TEMP, "type": "sensor_msgs/msg/Temperature"}, body
+    assert isinstance(ext["timestamp"], int), body
 
 
 @pytest.mark.parametrize("path", [

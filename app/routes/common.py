@@ -63,7 +63,7 @@ def check_entity_id(entity_id: str) -> None:
     problem = entity_id_problem(entity_id)
     if problem:
         raise ApiError(400, "invalid-parameter", "Invalid entity ID",
-                       {"details": problem, "entity_id": entity_id})
+                       {"details": problem, "entity_id": entity_id[:300]})
 
 
 def lookup(collection: str, entity_id: str) -> Entity:
