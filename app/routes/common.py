@@ -38,7 +38,7 @@ class DataIdConverter(BaseConverter):
     Werkzeug's ``path`` converter does not match a leading ``/`` (so
     ``data//a/b`` would not route) and ``.`` does not match a newline (so an
     encoded ``%0A`` would become a 404 instead of a 400); this one takes
-    everything and leaves the checking to :func:`app.routes.data.topic_from_data_id`.
+    everything and leaves the checking to :func:`app.routes.requests.topic_from_data_id`.
     """
 
     regex = r"[\s\S]*"
