@@ -24,8 +24,6 @@ from __future__ import annotations
 
 import math
 import os
-import signal
-import sys
 
 from app import config as _config
 
@@ -58,21 +56,3 @@ access_log_format = '%(h)s "%(r)s" %(s)s %(B)s %(M)sms'
 limit_request_line = 8190
 limit_request_fields = 100
 
-
-def on_starting(server) -> None:
-    """Die with the supervisor: if it is killed outright, this master gets SIGTERM."""
-    parent = os.environ.get("SOVD_SUPERVISOR_PID")
-    if not parent or not sys.platform.startswith("linux"):
-        return
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        pr_set_pdeathsig = 1
-        libc.prctl(pr_set_pdeathsig, int(signal.SIGTERM), 0, 0, 0)
-    except (OSError, AttributeError):
-        return
-    if str(os.getppid()) != parent:
-        # The supervisor died before prctl took effect.
-        server.log.error("supervisor (pid %s) is gone; not starting", parent)
-        sys.exit(1)

@@ -94,11 +94,13 @@ class Child:
     def start(self) -> None:
         if Child._libc is None and sys.platform.startswith("linux"):
             Child._libc = ctypes.CDLL(None, use_errno=True)
-        libc, sig = Child._libc, int(self.death_signal)
+        libc, sig, parent = Child._libc, int(self.death_signal), os.getpid()
 
         def in_child() -> None:  # between fork and exec: prctl only
             if libc is not None:
-                libc.prctl(1, sig, 0, 0, 0)  # PR_SET_PDEATHSIG
+                libc.prctl(1, sig, 0, 0, 0)  # PR_SET_PDEATHSIG: die with the supervisor
+                if os.getppid() != parent:   # it died before prctl took effect
+                    os._exit(1)
 
         self.proc = subprocess.Popen(self.argv, env=self.env, stdin=subprocess.DEVNULL,
                                      process_group=0, preexec_fn=in_child)
@@ -300,7 +302,6 @@ class Supervisor:
         for key in ("SOVD_CONFIG", "LISTEN_FDS", "LISTEN_PID", "LISTEN_FDNAMES", "GUNICORN_FD"):
             env.pop(key, None)
         env.update(self.cfg.to_env())
-        env["SOVD_SUPERVISOR_PID"] = str(os.getpid())
         env["PYTHONUNBUFFERED"] = "1"
         return env
 

@@ -422,3 +422,44 @@ def test_pool_list_survives_in_the_runtime_dir_only(temperature_pub):
             assert fh.read().strip() == str(gw.pid)
     finally:
         assert gw.stop() == 0
+
+
+# ---- the supervisor itself goes away, or gunicorn does --------------------------------------------
+def test_sigterm_while_starting_stops_cleanly(tmp_path):
+    gw = _gateway_proc(str(tmp_path))
+    try:
+        poll_until(lambda: rosworker_of(gw), 30, interval=0.01, message="ROS worker started")
+        children = [p.pid for p in psutil.Process(gw.pid).children(recursive=True)]
+        gw.signal(signal.SIGTERM)
+        assert gw.proc.wait(timeout=10) == 0
+        poll_until(lambda: all_gone(children), 5, message="children gone")
+    finally:
+        gw.stop()
+
+
+def test_children_die_with_a_killed_supervisor():
+    """SIGKILL of the supervisor (no chance to clean up): the parent-death signal ends the children."""
+    gw = Gateway()
+    try:
+        children = [p.pid for p in psutil.Process(gw.pid).children(recursive=True)]
+        assert len(children) >= 3
+        os.kill(gw.pid, signal.SIGKILL)
+        gw.proc.wait(timeout=10)
+        poll_until(lambda: all_gone(children), 20, message="children gone after the supervisor died")
+    finally:
+        gw.stop()
+
+
+def test_gunicorn_dying_ends_the_service():
+    gw = Gateway()
+    try:
+        worker = worker_pid(gw)
+        master = next(c for c in psutil.Process(gw.pid).children() if c.pid != worker)
+        http_workers = [c.pid for c in master.children()]
+        master.kill()
+        code = poll_until(lambda: gw.proc.poll(), 20, message="supervisor exits")
+        assert code == 1
+        assert f"gunicorn pid {master.pid} was killed by SIGKILL unexpectedly; stopping" in "\n".join(gw.output)
+        poll_until(lambda: all_gone([worker, *http_workers]), 10, message="everything gone")
+    finally:
+        gw.stop()
