@@ -79,6 +79,14 @@ class RosClient:
                     self._pid = pid
         return self._client
 
+    def close(self) -> None:
+        """Close this process's client (its sockets and ZeroMQ context), e.g. when a test ends."""
+        with self._lock:
+            client, pid = self._client, self._pid
+            self._client = self._pid = None
+        if client is not None and pid == os.getpid():
+            client.close()
+
     def call(self, cmd: str, args: dict[str, Any] | None = None, timeout: float | None = None,
              **kw: Any) -> dict[str, Any]:
         return self.client.call(cmd, args, self.ipc_timeout if timeout is None else timeout, **kw)

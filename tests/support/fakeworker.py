@@ -92,6 +92,7 @@ class FakeWorker:
         self.silent: set[str] = set()
         self.delays: dict[str, float] = {}
         self.requests: list[tuple[str, dict[str, Any], int]] = []
+        self.apps: list[Any] = []  # Flask apps made by make_app(self): closed with the worker
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._bound = threading.Event()
@@ -128,6 +129,10 @@ class FakeWorker:
             self._thread.join(timeout=5)
 
     def close(self) -> None:
+        from app import rosclient
+
+        for app in self.apps:
+            app.extensions[rosclient.EXTENSION].close()
         self.stop()
         if self._own_dir:
             shutil.rmtree(self.runtime_dir, ignore_errors=True)
@@ -222,7 +227,10 @@ def make_app(worker: FakeWorker | None = None, runtime_dir: str | None = None, *
 
     config = {"runtime_dir": runtime_dir or worker.runtime_dir, "SOVD_HOSTNAME": "test-robot",
               "SOVD_GRAPH_REFRESH_S": 0.0, **overrides}
-    return create_app(config)
+    app = create_app(config)
+    if worker is not None:
+        worker.apps.append(app)
+    return app
 
 
 ROBOT = [
