@@ -34,6 +34,7 @@ class RosWorkerClient:
         self._local = threading.local()
         self._lock = threading.Lock()
         self._ids = itertools.count(1)
+        self._sockets: list[zmq.Socket] = []  # every thread's socket, so close() can close them all
 
     @classmethod
     def for_runtime_dir(cls, runtime_dir: str) -> RosWorkerClient:
@@ -47,6 +48,7 @@ class RosWorkerClient:
                     # Forked (or first use): never touch the parent's context.
                     self._ctx = zmq.Context()
                     self._local = threading.local()
+                    self._sockets = []
                     self._pid = pid
         sock = getattr(self._local, "sock", None)
         if sock is None:
@@ -60,6 +62,8 @@ class RosWorkerClient:
             sock.setsockopt(zmq.RECONNECT_IVL_MAX, 500)
             sock.connect(self.endpoint)
             self._local.sock = sock
+            with self._lock:
+                self._sockets = [s for s in self._sockets if not s.closed] + [sock]
         return sock
 
     def _reset_socket(self) -> None:
@@ -119,4 +123,18 @@ class RosWorkerClient:
             raise IpcError.from_wire(reply.get("error"))
 
     def close(self) -> None:
-        self._reset_socket()
+        """Close every thread's socket and the context (call when no thread uses the client).
+
+        A context whose sockets are all closed terminates at once; left to the
+        garbage collector with a socket still open, ``term`` would block.
+        """
+        with self._lock:
+            sockets, self._sockets = self._sockets, []
+            ctx, owner = self._ctx, self._pid
+            self._ctx, self._pid = None, None
+            self._local = threading.local()
+        if ctx is None or owner != os.getpid():
+            return  # never touch a context inherited across fork()
+        for sock in sockets:
+            sock.close(linger=0)
+        ctx.term()

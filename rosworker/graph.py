@@ -34,7 +34,9 @@ class GraphMonitor:
         self.pool = pool
         self.stats = stats
         self.own = (node.get_name(), node.get_namespace())
-        self.generation = 0
+        # Starts from the wall clock (ms) so that a restarted worker never answers
+        # "unchanged" to a generation a client cached from its predecessor.
+        self.generation = time.time_ns() // 1_000_000
         self._fingerprint: int | None = None
         self._snapshot: dict[str, Any] | None = None
         self._last_full = 0.0

@@ -132,8 +132,10 @@ def test_shutdown_wakes_waiters_drains_and_exits_zero(nodes):
     poll_until(lambda: worker.stats()["data_provider"]["concurrent_cold_waits"] == 1, 5,
                message="cold waiter")
     started = time.monotonic()
-    code = worker.stop(timeout=10)
+    worker.signal(15)
+    code = worker.proc.wait(10)
     waiter.join(10)
+    worker.stop()
     assert code == 0
     assert time.monotonic() - started < 10
     assert answers and answers[0]["status"] == "metadata_only"

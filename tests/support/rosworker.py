@@ -60,8 +60,8 @@ class RosWorker(Proc):
                           timeout, interval=0.1, message=f"data on {topic}")
 
     def stop(self, timeout: float = 10.0) -> int:
-        self.client.close()
         code = super().stop(timeout)
+        self.client.close()  # after the process: no thread of ours still waits on a reply
         if self._own_dir:
             shutil.rmtree(self.runtime_dir, ignore_errors=True)
         return code
