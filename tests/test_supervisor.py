@@ -144,6 +144,13 @@ def pooled(runtime_dir: str) -> list[str]:
         client.close()
 
 
+def pings_after(notify: NotifyListener, marker: str) -> int:
+    """How many WATCHDOG=1 arrived after the first field containing ``marker``."""
+    fields = notify.fields()
+    start = next((i for i, f in enumerate(fields) if marker in f), None)
+    return 0 if start is None else fields[start:].count("WATCHDOG=1")
+
+
 # ---- start, read, stop -------------------------------------------------------------------------
 def test_reads_a_live_value_end_to_end(temperature_pub):
     gw = Gateway()
@@ -307,7 +314,7 @@ def test_hung_worker_stops_the_watchdog_and_is_replaced(notify):
                    20, message="not-answering status")
         poll_until(lambda: alive_again(gw, old), 40, interval=0.1, message="hung worker replaced")
         assert not psutil.pid_exists(old) or psutil.Process(old).status() == psutil.STATUS_ZOMBIE
-        poll_until(lambda: notify.fields()[-6:].count("WATCHDOG=1") >= 2, 20,
+        poll_until(lambda: pings_after(notify, "ready again") >= 2, 30,
                    message="WATCHDOG=1 again after the restart")
         fields = notify.fields()
         silent_from = next(i for i, f in enumerate(fields) if "not answering" in f)
@@ -321,6 +328,38 @@ def test_hung_worker_stops_the_watchdog_and_is_replaced(notify):
             os.kill(old, signal.SIGCONT)
         except ProcessLookupError:
             pass
+        assert gw.stop() == 0
+
+
+def test_degraded_worker_stops_the_watchdog_and_is_replaced(notify):
+    """A ROS task stuck past the threshold: the worker still answers, but is degraded."""
+    gw = Gateway("--debug-commands", "--watchdog-threshold", "200", "--watchdog-grace", "2",
+                 env=notify.env(watchdog_usec=1_000_000))
+    old = worker_pid(gw)
+    client = RosWorkerClient.for_runtime_dir(gw.runtime_dir)
+    try:
+        poll_until(lambda: notify.fields().count("WATCHDOG=1") >= 2, 20, message="WATCHDOG=1 pings")
+
+        def stuck():
+            try:
+                client.call("debug_sleep", {"seconds": 20}, timeout=25)
+            except Exception:  # the worker is killed under it
+                pass
+
+        threading.Thread(target=stuck, daemon=True).start()
+        poll_until(lambda: notify.has(lambda f: f.startswith(f"STATUS=ROS worker pid {old} degraded")),
+                   20, message="degraded status")
+        poll_until(lambda: alive_again(gw, old), 40, interval=0.1, message="stuck worker replaced")
+        poll_until(lambda: pings_after(notify, "ready again") >= 2, 30,
+                   message="WATCHDOG=1 again after the restart")
+        fields = notify.fields()
+        degraded = next(i for i, f in enumerate(fields) if "degraded" in f)
+        killed = next(i for i, f in enumerate(fields) if f"killing ROS worker pid {old}" in f)
+        back = next(i for i, f in enumerate(fields) if i > killed and "ready again" in f)
+        assert degraded < killed < back
+        assert "WATCHDOG=1" not in fields[degraded:back], "WATCHDOG=1 sent while degraded"
+    finally:
+        client.close()
         assert gw.stop() == 0
 
 
