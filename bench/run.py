@@ -1,0 +1,513 @@
+"""``make bench``: the gateway side by side with its floor and with the old design, in one run.
+
+    python -m bench.run [--quick] [--out DIR] [--no-install] [--python-load] [--profile]
+
+Starts, in a private ROS domain with localhost-only discovery: the demo
+robot (``demo/robot.py``), a real ``sovd-gateway`` (console script, default
+settings, log level ``warning`` so that gunicorn writes no access log line
+per request), and per case its own publishers (``bench/robot.py``).  Then
+it measures every case below, prints the table and writes it as JSON to
+``bench/results/bench-<UTC timestamp>.json``.  Every target is a ratio or a
+difference between figures of the same run.
+
+| case | how |
+|---|---|
+| floor | ``GET /api/v1/version-info`` (touches no ROS worker), 8 and 1 connections |
+| warm sample | ``GET .../data/powertrain/engine/temperature`` (10 Hz, pooled), 8 and 1 connections |
+| old design | ``bench/oldsampler.py``: create a subscription, wait for a message, destroy it |
+| cold sample | the first HTTP read of a fresh 10 Hz topic, one topic per read |
+| image | 640×480 rgb8 at 10 Hz, 1 connection, integer arrays, then ``?bytes=base64`` |
+| idle cost | ROS worker CPU, 50 pooled topics at 100 Hz, no readers, next to ``bench/ddsfloor.py`` |
+| memory | ROS worker RSS before and with 256 pooled topics |
+
+Floor and warm sample are measured in alternating rounds (floor, sample,
+floor, sample ...) and each figure is the median over the rounds, so that a
+slow moment of the machine does not land on one side only.
+
+Exit status: 0 every target met, 2 some target missed, 1 the run itself
+failed (what was measured is still written).
+
+``--quick`` runs every case briefly (seconds instead of minutes) for the
+smoke test; its figures are not meant to be read and it exits 0 whatever
+they are.  ``--profile`` also runs py-spy against the ROS worker and one
+HTTP worker under 8-connection load and stores the collapsed stacks beside
+the JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import http.client
+import json
+import os
+import platform
+import random
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import requests
+
+from ipc.client import RosWorkerClient
+from tests.support.procs import Proc, poll_until
+
+from . import load as loadgen
+from .procs import BenchGateway, claim_domain, measure_cpu, robot, ros_helper
+
+RESULTS = Path(__file__).resolve().parent / "results"
+WARM_TOPIC = "/powertrain/engine/temperature"   # demo robot, sensor_msgs/msg/Temperature, 10 Hz
+WARM_APP = "temp_sensor"
+IMAGE_TOPIC = "/bench/camera/image"
+
+FULL = {"rounds": 3, "load_s": 5.0, "warmup_s": 2.0, "image_s": 8.0, "old_n": 30, "cold_n": 20,
+        "idle_topics": 50, "idle_rate": 100, "idle_s": 10.0, "mem_topics": 256}
+QUICK = {"rounds": 1, "load_s": 1.0, "warmup_s": 0.0, "image_s": 1.0, "old_n": 3, "cold_n": 3,
+         "idle_topics": 50, "idle_rate": 100, "idle_s": 2.0, "mem_topics": 16}
+
+TARGETS = {
+    "warm_rps_ratio": 0.7,        # warm sample 8 conn ≥ 0.7 × floor
+    "warm_p50_extra_ms": 0.3,     # warm sample 1 conn p50 ≤ floor p50 + 0.3 ms
+    "old_speedup": 100.0,         # old design p50 ≥ 100 × warm p50
+    "cold_p50_ms": 150.0,
+    "image_p50_ms": 30.0,
+    "idle_cpu_ratio": 1.5,
+}
+
+
+def log(text: str) -> None:
+    print(f"[bench {time.strftime('%H:%M:%S')}] {text}", file=sys.stderr, flush=True)
+
+
+# ---------------------------------------------------------------------------- helpers
+
+class Bench:
+    def __init__(self, args: argparse.Namespace):
+        self.args = args
+        self.p = QUICK if args.quick else FULL
+        self.rows: list[dict[str, Any]] = []
+        self.procs: list[Proc] = []
+        self.gw: BenchGateway | None = None
+        self.ipc: RosWorkerClient | None = None
+        self.load: loadgen.Load | None = None
+        self.work_dir = tempfile.mkdtemp(prefix="sovd-bench-logs-")
+        self.host_id = ""
+        self.extra: dict[str, Any] = {}
+
+    # ---- infrastructure ----
+    def start(self) -> None:
+        domain = claim_domain()
+        log(f"ROS_DOMAIN_ID={domain}, localhost-only discovery; logs in {self.work_dir}")
+        if self.args.python_load:
+            wrk, note = None, "Python fallback forced (--python-load)"
+        else:
+            wrk, note = loadgen.ensure_wrk(install=not self.args.no_install)
+        self.load = loadgen.Load(wrk, note)
+        log(f"load generator: {self.load.name} {note}")
+        self.procs.append(ros_helper_demo())
+        self.gw = BenchGateway("--log-level", "warning", log_dir=self.work_dir)
+        self.ipc = RosWorkerClient.for_runtime_dir(self.gw.runtime_dir)
+        comps = requests.get(self.gw.api + "/components", timeout=5).json()["items"]
+        self.host_id = comps[0]["id"]
+        log(f"gateway on {self.gw.url} (ROS worker pid {self.gw.rosworker().pid}, "
+            f"HTTP workers {[p.pid for p in self.gw.http_workers()]})")
+
+    def stop(self) -> None:
+        for proc in reversed(self.procs):
+            try:
+                proc.stop(timeout=5)
+            except Exception as exc:  # noqa: BLE001 - keep stopping the others
+                log(f"stopping {proc.name}: {exc!r}")
+        if self.ipc is not None:
+            self.ipc.close()
+        if self.gw is not None:
+            self.gw.stop()
+
+    def call(self, cmd: str, args: dict | None = None, timeout: float = 5.0) -> dict:
+        return self.ipc.call(cmd, args, timeout)
+
+    def url(self, topic: str, entity: str | None = None, query: str = "") -> str:
+        entity = entity or f"components/{self.host_id}"
+        return f"{self.gw.api}/{entity}/data{topic}" + (f"?{query}" if query else "")
+
+    def wait_data(self, url: str, timeout: float = 30.0) -> dict:
+        def ok():
+            r = requests.get(url, timeout=10)
+            body = r.json()
+            return body if r.status_code == 200 and body["x-medkit"]["status"] == "data" else None
+        return poll_until(ok, timeout, interval=0.1, message=f"data at {url}")
+
+    def wait_topics(self, topics: list[str], timeout: float = 60.0) -> None:
+        wanted = set(topics)
+
+        def seen():
+            graph = self.call("graph")
+            have = {t["name"] for t in graph.get("topics", []) if t.get("publisher_count")}
+            return wanted <= have
+        poll_until(seen, timeout, interval=0.2, message=f"{len(wanted)} topics in the ROS worker's graph")
+
+    def pool_topics(self, topics: list[str], timeout: float = 60.0) -> None:
+        pending = list(topics)
+
+        def pooled():
+            nonlocal pending
+            pending = [t for t in pending if self.call("subscribe", {"topic": t})["status"] != "pooled"]
+            return not pending
+        poll_until(pooled, timeout, interval=0.2, message=f"{len(topics)} topics pooled")
+
+    def evict_all(self) -> None:
+        for topic in self.call("pool")["topics"]:
+            self.call("evict", {"topic": topic})
+
+    def stop_proc(self, proc: Proc) -> None:
+        proc.stop(timeout=5)
+        if proc in self.procs:
+            self.procs.remove(proc)
+
+    def add(self, key: str, case: str, how: str, values: dict[str, Any], measured: str,
+            target: str = "—", passed: bool | None = None) -> None:
+        row = {"key": key, "case": case, "how": how, "values": values, "measured": measured,
+               "target": target, "result": "report" if passed is None else ("PASS" if passed else "FAIL")}
+        self.rows.append(row)
+        log(f"{case}: {measured}  [{row['result']}]")
+
+    # ---- cases ----
+    def run_cases(self) -> None:
+        self.case_floor_and_warm()
+        self.case_old_design()
+        self.case_memory()   # before image/cold/idle: its "before" RSS is not their high-water mark
+        self.case_image()
+        self.case_cold()
+        self.case_idle()
+
+    def _load(self, url: str, connections: int, seconds: float) -> loadgen.LoadResult:
+        return self.load.run(url, connections, seconds)
+
+    def case_floor_and_warm(self) -> None:
+        p = self.p
+        floor_url = self.gw.api + "/version-info"
+        warm_url = self.url(WARM_TOPIC, f"apps/{WARM_APP}")
+        self.wait_data(warm_url)
+        if p["warmup_s"]:
+            self._load(floor_url, 8, p["warmup_s"])
+            self._load(warm_url, 8, p["warmup_s"])
+        runs: dict[str, list[loadgen.LoadResult]] = {"floor8": [], "warm8": [], "floor1": [], "warm1": []}
+        for i in range(p["rounds"]):
+            for key, url, conns in (("floor8", floor_url, 8), ("warm8", warm_url, 8),
+                                    ("floor1", floor_url, 1), ("warm1", warm_url, 1)):
+                runs[key].append(self._load(url, conns, p["load_s"]))
+            log(f"round {i + 1}/{p['rounds']}: " + ", ".join(
+                f"{k} {v[-1]['rps']:.0f} req/s p50 {v[-1]['p50_ms']:.3f} ms" for k, v in runs.items()))
+        if self.args.profile:
+            self.profile(warm_url)
+        med = {k: {"rps": statistics.median(r["rps"] for r in v),
+                   "p50_ms": statistics.median(r["p50_ms"] for r in v),
+                   "p99_ms": statistics.median(r["p99_ms"] for r in v),
+                   "errors": sum(r["errors"] for r in v), "rounds": v} for k, v in runs.items()}
+        self.extra["floor_warm_rounds"] = runs
+        errors = sum(m["errors"] for m in med.values())
+        gen = self.load.name.split(" ")[0]
+        self.add("floor8", "floor, 8 connections", f"{gen} -c8 GET /api/v1/version-info",
+                 med["floor8"], f"{med['floor8']['rps']:.0f} req/s, p50 {med['floor8']['p50_ms']:.3f} ms")
+        self.add("floor1", "floor, 1 connection", f"{gen} -c1 GET /api/v1/version-info",
+                 med["floor1"], f"p50 {med['floor1']['p50_ms']:.3f} ms, {med['floor1']['rps']:.0f} req/s")
+        ratio = med["warm8"]["rps"] / med["floor8"]["rps"] if med["floor8"]["rps"] else 0.0
+        self.add("warm8", "warm sample, small message, 8 connections",
+                 f"{gen} -c8 GET .../data{WARM_TOPIC} (Temperature, 10 Hz)",
+                 {**med["warm8"], "ratio_to_floor": round(ratio, 3)},
+                 f"{med['warm8']['rps']:.0f} req/s = {ratio:.2f} × floor"
+                 + (f", {med['warm8']['errors']} errors" if med["warm8"]["errors"] else ""),
+                 f"≥ {TARGETS['warm_rps_ratio']} × floor",
+                 ratio >= TARGETS["warm_rps_ratio"] and med["warm8"]["errors"] == 0)
+        extra = med["warm1"]["p50_ms"] - med["floor1"]["p50_ms"]
+        self.add("warm1", "warm sample, 1 connection", f"{gen} -c1 GET .../data{WARM_TOPIC}",
+                 {**med["warm1"], "extra_over_floor_ms": round(extra, 3)},
+                 f"p50 {med['warm1']['p50_ms']:.3f} ms = floor + {extra:.3f} ms",
+                 f"≤ floor p50 + {TARGETS['warm_p50_extra_ms']} ms",
+                 extra <= TARGETS["warm_p50_extra_ms"] and med["warm1"]["errors"] == 0)
+        if errors:
+            log(f"WARNING: {errors} HTTP errors during floor/warm runs")
+
+    def case_old_design(self) -> None:
+        n = self.p["old_n"]
+        proc = ros_helper("oldsampler", WARM_TOPIC, str(n), "2.0", name="oldsampler")
+        line = proc.wait_line(lambda x: x.startswith("{"), 30 + n * 2.5)
+        self.stop_proc_quiet(proc)
+        raw = json.loads(line)
+        samples = raw.get("samples_ms", [])
+        p50 = statistics.median(samples) if samples else float("inf")
+        warm = next(r for r in self.rows if r["key"] == "warm1")["values"]["p50_ms"]
+        speedup = p50 / warm if warm else 0.0
+        self.add("old", "old design (subscribe per request)",
+                 f"bench/oldsampler.py, rclpy: create sub, wait 1st msg, destroy; {n}× on {WARM_TOPIC}",
+                 {"p50_ms": round(p50, 3), "min_ms": min(samples, default=None),
+                  "max_ms": max(samples, default=None), "timeouts": raw.get("timeouts"), "samples_ms": samples,
+                  "speedup_of_warm_1conn": round(speedup, 1)},
+                 f"p50 {p50:.1f} ms; warm pooled sample is {speedup:.0f}× faster",
+                 f"warm ≥ {TARGETS['old_speedup']:.0f}× faster", speedup >= TARGETS["old_speedup"])
+
+    def stop_proc_quiet(self, proc: Proc) -> None:
+        try:
+            proc.stop(timeout=5)
+        except Exception as exc:  # noqa: BLE001
+            log(f"stopping {proc.name}: {exc!r}")
+
+    def case_image(self) -> None:
+        cam = robot("bench_camera", [{"topic": IMAGE_TOPIC, "rate": 10, "kind": "image"}])
+        self.procs.append(cam)
+        array_url = self.url(IMAGE_TOPIC)
+        b64_url = self.url(IMAGE_TOPIC, query="bytes=base64")
+        self.wait_data(array_url)
+        self.wait_data(b64_url)
+        res = {}
+        for key, url in (("array", array_url), ("base64", b64_url)):
+            if self.p["warmup_s"]:
+                self._load(url, 1, 1)
+            res[key] = self._load(url, 1, self.p["image_s"])
+        gen = self.load.name.split(" ")[0]
+        a, b = res["array"], res["base64"]
+        self.add("image", "640×480 rgb8 image, warm, 1 connection",
+                 f"{gen} -c1, JSON with integer arrays (the contract), image at 10 Hz",
+                 dict(a), f"p50 {a['p50_ms']:.2f} ms, p99 {a['p99_ms']:.2f} ms, "
+                 f"{a['bytes_per_request'] / 1e6:.2f} MB/answer", f"p50 ≤ {TARGETS['image_p50_ms']:.0f} ms",
+                 a["p50_ms"] <= TARGETS["image_p50_ms"] and a["errors"] == 0)
+        self.add("image_b64", "same image with ?bytes=base64", f"{gen} -c1, uint8[] as one base64 string",
+                 dict(b), f"p50 {b['p50_ms']:.2f} ms, p99 {b['p99_ms']:.2f} ms, "
+                 f"{b['bytes_per_request'] / 1e6:.2f} MB/answer")
+        self.stop_proc(cam)
+        self.evict_all()
+
+    def case_cold(self) -> None:
+        n = self.p["cold_n"]
+        topics = [f"/bench/cold/t{i}" for i in range(n)]
+        pub = robot("bench_cold", [{"prefix": "/bench/cold/t", "count": n, "rate": 10, "kind": "small"}])
+        self.procs.append(pub)
+        self.wait_topics(topics)
+        # The HTTP workers' graph caches must know the host component (they do) and nothing else:
+        # the topic is not checked against the entity.
+        rng = random.Random(7)
+        conn = http.client.HTTPConnection("127.0.0.1", self.gw.port, timeout=10)
+        times, misses = [], 0
+        for topic in topics:
+            time.sleep(rng.uniform(0, 0.1))  # a random phase against the publisher's 10 Hz ticks
+            path = self.url(topic)[len(self.gw.url):]
+            start = time.perf_counter()
+            conn.request("GET", path)
+            resp = conn.getresponse()
+            body = resp.read()
+            elapsed = (time.perf_counter() - start) * 1000
+            status = json.loads(body).get("x-medkit", {}).get("status") if resp.status == 200 else None
+            if status == "data":
+                times.append(round(elapsed, 3))
+            else:
+                misses += 1
+        conn.close()
+        p50 = statistics.median(times) if times else float("inf")
+        self.add("cold", "cold sample (first read of a fresh 10 Hz topic)",
+                 f"http.client, {n} fresh topics read once each, random phase",
+                 {"p50_ms": round(p50, 3), "max_ms": max(times, default=None), "min_ms": min(times, default=None),
+                  "misses": misses, "samples_ms": times},
+                 f"p50 {p50:.1f} ms (min {min(times, default=0):.1f}, max {max(times, default=0):.1f})"
+                 + (f", {misses} without data" if misses else ""),
+                 f"p50 ≤ {TARGETS['cold_p50_ms']:.0f} ms", p50 <= TARGETS["cold_p50_ms"] and not misses)
+        self.stop_proc(pub)
+        self.evict_all()
+
+    def case_idle(self) -> None:
+        p = self.p
+        n, rate = p["idle_topics"], p["idle_rate"]
+        topics = [f"/bench/idle/t{i}" for i in range(n)]
+        pub = robot("bench_idle", [{"prefix": "/bench/idle/t", "count": n, "rate": rate, "kind": "small"}])
+        self.procs.append(pub)
+        self.wait_topics(topics)
+        self.evict_all()
+        self.pool_topics(topics)
+        floor = ros_helper("ddsfloor", json.dumps(topics), name="ddsfloor")
+        self.procs.append(floor)
+        time.sleep(2.0 if not self.args.quick else 1.0)  # matching settles
+        pooled = self.call("pool")["topics"]
+        worker = self.gw.rosworker()
+        import psutil
+        procs = {"rosworker": worker, "ddsfloor": psutil.Process(floor.pid),
+                 "publisher": psutil.Process(pub.pid)}
+        for i, w in enumerate(self.gw.http_workers()):
+            procs[f"http_worker_{i}"] = w
+        cpu = measure_cpu(procs, p["idle_s"])
+        ratio = cpu["rosworker"] / cpu["ddsfloor"] if cpu["ddsfloor"] > 0 else float("inf")
+        values = {k: round(v * 100, 2) for k, v in cpu.items()}
+        values.update(pooled=len(pooled), topics=n, rate_hz=rate, seconds=p["idle_s"],
+                      ratio=round(ratio, 3))
+        self.add("idle", "idle cost: ROS worker CPU, 50 pooled topics × 100 Hz, no readers"
+                 if n == 50 and rate == 100 else f"idle cost: {n} pooled topics × {rate} Hz",
+                 f"psutil cpu_times over {p['idle_s']:g} s, same window as bench/ddsfloor.py "
+                 f"({n} subscriptions held, never spun)",
+                 values, f"worker {values['rosworker']:.1f}% of a core vs DDS floor "
+                 f"{values['ddsfloor']:.1f}% = {ratio:.2f} × floor",
+                 f"≤ {TARGETS['idle_cpu_ratio']} × floor", ratio <= TARGETS["idle_cpu_ratio"])
+        self.stop_proc(floor)
+        self.stop_proc(pub)
+        self.evict_all()
+
+    def case_memory(self) -> None:
+        n = self.p["mem_topics"]
+        topics = [f"/bench/mem/t{i}" for i in range(n)]
+        worker = self.gw.rosworker()
+        pub = robot("bench_memory", [{"prefix": "/bench/mem/t", "count": n, "rate": 2, "kind": "small"}],
+                    timeout=120)
+        self.procs.append(pub)
+        self.wait_topics(topics, timeout=120)
+        self.evict_all()
+        time.sleep(0.5)
+        before = worker.memory_info().rss
+        self.pool_topics(topics, timeout=120)
+        time.sleep(1.0)  # every pooled reader has a message (2 Hz)
+        for t in topics:
+            self.call("sample", {"topic": t, "timeout_ms": 2000}, timeout=5)
+        after = worker.memory_info().rss
+        pooled = len(self.call("pool")["topics"])
+        per = (after - before) / max(1, pooled)
+        values = {"rss_before_mib": round(before / 2**20, 1), "rss_after_mib": round(after / 2**20, 1),
+                  "pooled": pooled, "per_topic_kib": round(per / 1024, 1)}
+        self.add("memory", f"memory: ROS worker RSS with {n} pooled topics",
+                 f"psutil RSS before pooling and after pooling + reading each of {n} topics once",
+                 values, f"{values['rss_after_mib']:.1f} MiB with {pooled} pooled "
+                 f"(from {values['rss_before_mib']:.1f} MiB: {values['per_topic_kib']:.0f} KiB/topic)")
+        self.stop_proc(pub)
+        self.evict_all()
+
+    # ---- profiling ----
+    def profile(self, warm_url: str) -> None:
+        """py-spy (sampling, non-blocking) on the ROS worker and one HTTP worker under -c8 load."""
+        spy = Path(sys.executable).parent / "py-spy"
+        secs = max(3, int(self.p["load_s"]))
+        out_dir = RESULTS
+        targets = {"rosworker": self.gw.rosworker().pid, "http_worker": self.gw.http_workers()[0].pid}
+        spies = []
+        for name, pid in targets.items():
+            path = out_dir / f"profile-{self.stamp}-{name}.txt"
+            spies.append((name, path, subprocess.Popen(
+                [str(spy), "record", "--nonblocking", "--threads", "-r", "250", "-d", str(secs + 1),
+                 "--format", "raw", "-o", str(path), "-p", str(pid)],
+                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)))
+        time.sleep(0.5)
+        self._load(warm_url, 8, secs)
+        for name, path, proc in spies:
+            try:
+                proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+            self.extra.setdefault("profiles", {})[name] = str(path)
+            log(f"py-spy profile of {name}: {path}")
+
+    stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
+
+
+def ros_helper_demo() -> Proc:
+    proc = Proc([sys.executable, "-m", "demo.robot"], name="demo robot")
+    proc.wait_line(lambda line: line.startswith("demo robot running"), 60)
+    return proc
+
+
+# ---------------------------------------------------------------------------- output
+
+ORDER = ("floor8", "floor1", "warm8", "warm1", "old", "cold", "image", "image_b64", "idle", "memory")
+
+
+def ordered(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    return sorted(rows, key=lambda r: ORDER.index(r["key"]) if r["key"] in ORDER else len(ORDER))
+
+
+def table(rows: list[dict[str, Any]]) -> str:
+    head = ("case", "how", "measured", "target", "result")
+    body = [(r["case"], r["how"], r["measured"], r["target"], r["result"]) for r in rows]
+    widths = [max(len(h), *(len(b[i]) for b in body)) for i, h in enumerate(head)]
+
+    def line(cells):
+        return "| " + " | ".join(c.ljust(w) for c, w in zip(cells, widths, strict=True)) + " |"
+    out = [line(head), "|" + "|".join("-" * (w + 2) for w in widths) + "|"]
+    out += [line(b) for b in body]
+    return "\n".join(out)
+
+
+def settings() -> dict[str, Any]:
+    from app import config
+    cfg = config.load(None, environ={})
+    info = {"workers": cfg.workers, "threads": cfg.threads, "sample_timeout": cfg.sample_timeout,
+            "cold_wait_cap": cfg.cold_wait_cap, "max_pool_size": cfg.max_pool_size,
+            "log_level": "warning (no access log)"}
+    try:
+        out = subprocess.run([sys.executable, "-c", "import app.gunicorn_conf as g; "
+                              "print(g.worker_class, g.workers, g.threads)"],
+                             capture_output=True, text=True, timeout=30, env={**os.environ, "SOVD_LOG_LEVEL": "warning"})
+        cls, workers, threads = out.stdout.split()
+        info.update(worker_class=cls, workers=int(workers), threads=int(threads))
+    except (ValueError, OSError, subprocess.SubprocessError):
+        pass
+    return info
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.run", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="every case, briefly (smoke test)")
+    parser.add_argument("--out", default=str(RESULTS), help="directory for the JSON result")
+    parser.add_argument("--no-install", action="store_true", help="do not install wrk when it is missing")
+    parser.add_argument("--python-load", action="store_true", help="use the Python load generator, not wrk")
+    parser.add_argument("--profile", action="store_true", help="also record py-spy profiles under load")
+    args = parser.parse_args(argv)
+
+    bench = Bench(args)
+    started = dt.datetime.now(dt.UTC)
+    failed = None
+    try:
+        bench.start()
+        bench.run_cases()
+    except Exception as exc:  # noqa: BLE001 - report, still write what was measured
+        failed = f"{type(exc).__name__}: {exc}"
+        log(f"FAILED: {failed}")
+    finally:
+        bench.stop()
+
+    result = {
+        "started_at": started.isoformat(timespec="seconds"),
+        "seconds": round((dt.datetime.now(dt.UTC) - started).total_seconds(), 1),
+        "mode": "quick" if args.quick else "full",
+        "host": {"cpus": os.cpu_count(), "python": platform.python_version(), "kernel": platform.release(),
+                 "machine": platform.machine()},
+        "load_generator": bench.load.name if bench.load else None,
+        "load_generator_note": bench.load.note if bench.load else None,
+        "gateway": settings(),
+        "ros_domain_id": int(os.environ.get("ROS_DOMAIN_ID", "0")),
+        "cases": ordered(bench.rows),
+        "details": bench.extra,
+        "error": failed,
+        "all_targets_met": failed is None and all(r["result"] != "FAIL" for r in bench.rows),
+    }
+    out_dir = Path(args.out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / f"bench-{Bench.stamp}{'-quick' if args.quick else ''}.json"
+    path.write_text(json.dumps(result, indent=1, default=str) + "\n")
+
+    print()
+    print(f"sovd-gateway bench ({result['mode']}), {result['started_at']}, {os.cpu_count()} CPUs, "
+          f"load generator: {result['load_generator']}"
+          + (f" ({result['load_generator_note']})" if result["load_generator_note"] else ""))
+    g = result["gateway"]
+    print(f"gateway: gunicorn {g.get('worker_class', '?')} × {g.get('workers')} workers × "
+          f"{g.get('threads')} threads, {g['log_level']}")
+    print()
+    print(table(ordered(bench.rows)))
+    print()
+    if failed:
+        print(f"bench did not finish: {failed}")
+    print(f"written to {path}")
+    if failed is not None:
+        return 1
+    return 0 if result["all_targets_met"] or args.quick else 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

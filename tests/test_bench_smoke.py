@@ -1,0 +1,49 @@
+"""``make bench`` end to end in its tiny mode: every case runs and lands in the JSON.
+
+The figures of a quick run are not checked (timing belongs to the bench, not
+to test assertions); only that the harness starts its publishers and a real
+gateway, measures every case, writes a well-formed result and cleans up.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from tests.support.procs import REPO
+
+CASES = {"floor8", "floor1", "warm8", "warm1", "old", "cold", "image", "image_b64", "idle", "memory"}
+
+
+@pytest.mark.timeout(120)
+def test_quick_bench_runs_every_case_and_writes_json(tmp_path):
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    # The bench claims its own ROS domain (as a test session does): let it.
+    env.pop("ROS_DOMAIN_ID", None)
+    env.pop("SOVD_TEST_DOMAIN_CLAIMED", None)
+    proc = subprocess.run([sys.executable, "-m", "bench.run", "--quick", "--no-install", "--out", str(tmp_path)],
+                          cwd=REPO, env=env, capture_output=True, text=True, timeout=110)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    files = list(tmp_path.glob("bench-*-quick.json"))
+    assert len(files) == 1, proc.stdout[-2000:]
+    result = json.loads(files[0].read_text())
+    assert result["error"] is None
+    assert result["mode"] == "quick"
+    assert result["load_generator"]
+    rows = {row["key"]: row for row in result["cases"]}
+    assert set(rows) == CASES
+    for row in rows.values():
+        assert row["result"] in ("PASS", "FAIL", "report"), row
+        assert row["measured"] and row["values"], row
+    assert rows["warm8"]["values"]["rps"] > 0
+    assert rows["floor1"]["values"]["p50_ms"] > 0
+    assert rows["cold"]["values"]["misses"] == 0
+    assert rows["idle"]["values"]["pooled"] >= 50
+    assert rows["memory"]["values"]["pooled"] > 0
+    # The table is printed, one line per case.
+    for row in rows.values():
+        assert row["case"] in proc.stdout
