@@ -186,6 +186,41 @@ def test_signal_stops_everything_and_leaves_nothing(sig):
         gw.stop()
 
 
+def test_in_flight_request_finishes_on_sigterm():
+    """gunicorn is stopped first and gets shutdown_grace: a read waiting on a cold topic completes."""
+    silent = publisher("sup_silent", "/sup_test/silent", "std_msgs/msg/Float32", rate=0.001)
+    gw = Gateway("--sample-timeout", "3")
+    try:
+        comp = host_id(gw)
+        answer: dict = {}
+
+        def read():
+            try:
+                answer["r"] = read_topic(gw, comp, "/sup_test/silent", timeout=20)
+            except requests.RequestException as exc:
+                answer["exc"] = exc
+
+        client = RosWorkerClient.for_runtime_dir(gw.runtime_dir)
+        t = threading.Thread(target=read)
+        t.start()
+        try:
+            poll_until(lambda: client.call("stats", timeout=1)["data_provider"]["concurrent_cold_waits"] >= 1,
+                       20, message="the read waits on the cold topic")
+        finally:
+            client.close()
+        gw.signal(signal.SIGTERM)
+        t.join(20)
+        assert not t.is_alive()
+        assert "exc" not in answer, answer
+        body = answer["r"].json()
+        assert answer["r"].status_code == 200
+        assert body["x-medkit"]["status"] == "metadata_only"
+        assert gw.proc.wait(timeout=15) == 0
+    finally:
+        gw.stop()
+        silent.stop()
+
+
 def test_children_get_resolved_settings_and_no_notify_socket(notify):
     gw = Gateway("--sample-timeout", "2.5", "--workers", "1", env=notify.env())
     try:
