@@ -1,0 +1,115 @@
+"""Scenario 2, cold-wait storm: more cold callers than ``cold_wait_cap``, on silent publishers.
+
+Silent publishers exist in the graph but publish every 1000 s, so every read
+of their topics is cold and waits the whole sample timeout.  In each round
+many callers read distinct silent topics at the same moment: ``cold_wait_cap``
+of them wait (and get metadata_only at the timeout), the rest are shed at
+once with 503 ``x-medkit-cold-wait-cap-exceeded`` and ``Retry-After``.
+Meanwhile a warm topic is read in a loop and ``/health`` is polled: neither
+is ever stuck behind the waiting callers.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+
+from tests.reliability.load import (
+    Client,
+    HealthProbe,
+    Load,
+    Req,
+    call,
+    memory,
+    record,
+    restarts_in,
+    scaled,
+)
+from tests.support.procs import RosNode, poll_until, publisher
+
+CAP = 4
+SAMPLE_TIMEOUT = 3.0
+CALLERS = scaled(24, 60)
+ROUNDS = scaled(2, 10)
+SILENT = [f"/coldwait/silent{i}" for i in range(CALLERS)]
+WARM = "/coldwait/warm"
+
+
+def sample_info(req, status, headers, body):
+    doc = json.loads(body)
+    if status == 200:
+        return doc["x-medkit"]["status"], doc["x-medkit"].get("reason")
+    return doc
+
+
+def test_excess_cold_callers_are_shed_at_once_while_warm_reads_and_health_stay_fast(gateways, nodes):
+    nodes.append(RosNode({"node": "cw_silent", "publish": [
+        {"topic": t, "type": "std_msgs/msg/String", "rate": 0.001} for t in SILENT]}))
+    nodes.append(publisher("cw_warm", WARM, "std_msgs/msg/Float64", rate=20, counter="data"))
+    gw = gateways("--cold-wait-cap", str(CAP), "--sample-timeout", str(SAMPLE_TIMEOUT),
+                  "--threads", str(CALLERS), "--log-level", "warning")
+    host = gw.get("/components").json()["items"][0]["id"]
+    base = f"/api/v1/components/{host}/data"
+    poll_until(lambda: len(gw.get("/apps/cw_silent/data").json()["items"]) >= CALLERS, 30,
+               message="every silent topic discovered")
+    poll_until(lambda: gw.get(f"/components/{host}/data{WARM}").json()["x-medkit"]["status"] == "data",
+               30, message="warm topic has data")
+    rss_before = memory(gw.pid)
+
+    cold: list = []
+    warm_load = Load(gw.port, lambda rng: Req("warm", "GET", base + WARM), 2, inspect=sample_info)
+    with HealthProbe(gw.port, interval=0.05) as probe:
+        warm_load.start()
+        for round_no in range(ROUNDS):
+            barrier = threading.Barrier(CALLERS)
+
+            def caller(topic: str, barrier: threading.Barrier, kind: str) -> None:
+                client = Client(gw.port)
+                barrier.wait(10)
+                cold.append(call(client, Req(kind, "GET", base + topic), sample_info))
+                client.close()
+
+            threads = [threading.Thread(target=caller, args=(t, barrier, f"round{round_no}"), daemon=True)
+                       for t in SILENT]
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join(SAMPLE_TIMEOUT + 30)
+            assert not any(t.is_alive() for t in threads), "a cold caller hung"
+            poll_until(lambda: gw.get("/health").json()["x-medkit-data-provider"]["concurrent_cold_waits"] == 0,
+                       10, message="cold waiters released")
+        warm_load.stop()
+        warm = warm_load.join(30)
+    rss_after = memory(gw.pid)
+    record("cold-wait storm", cold + warm, probe=probe, restarts=restarts_in(gw.output),
+           rss_before=rss_before, rss_after=rss_after,
+           note=f"{ROUNDS} rounds x {CALLERS} cold callers, cap {CAP}, {len(warm)} warm reads")
+
+    problems = [a for a in cold + warm if a.problem or isinstance(a.status, str)]
+    assert not problems, [(a.path, a.status, a.problem) for a in problems[:5]]
+    for round_no in range(ROUNDS):
+        answers = [a for a in cold if a.kind == f"round{round_no}"]
+        waited = [a for a in answers if a.status == 200]
+        shed = [a for a in answers if a.status == 503]
+        assert len(waited) + len(shed) == CALLERS, [a.key for a in answers]
+        # Exactly the cap waits; the waiters get metadata_only when the timeout passes.
+        assert len(waited) == CAP, [a.key for a in answers]
+        assert all(a.info == ("metadata_only", "timeout") for a in waited), [a.info for a in waited]
+        # The excess is shed at once: long before a waiter's timeout (a hang catcher, not a benchmark).
+        for a in shed:
+            assert a.key == "503 x-medkit-cold-wait-cap-exceeded"
+            assert a.info["parameters"]["cold_wait_cap"] == CAP
+            assert a.info["parameters"]["topic"] in SILENT
+            assert a.elapsed < SAMPLE_TIMEOUT * 0.8, f"shed after {a.elapsed:.2f} s"
+        assert all(a.elapsed >= SAMPLE_TIMEOUT * 0.9 for a in waited)
+    # Warm reads went on while callers waited, and each answered with data, never behind a waiter.
+    assert warm and all(a.status == 200 and a.info == ("data", None) for a in warm)
+    assert max(a.elapsed for a in warm) < SAMPLE_TIMEOUT * 0.8
+    first = min(a.started for a in cold)
+    during = [a for a in warm if first <= a.started and a.finished <= first + SAMPLE_TIMEOUT * 0.9]
+    assert len(during) >= 5, "warm reads stalled while cold callers waited"
+    # /health never waited either, and never saw more waiters than the cap.
+    assert probe.samples and all(s[2] == 200 for s in probe.samples)
+    assert probe.worst_ms() < SAMPLE_TIMEOUT * 800
+    assert probe.max_of("x-medkit-data-provider", "concurrent_cold_waits") <= CAP
+    assert restarts_in(gw.output) == 0
