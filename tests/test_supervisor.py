@@ -193,6 +193,11 @@ def test_in_flight_request_finishes_on_sigterm():
     try:
         comp = host_id(gw)
         answer: dict = {}
+        client = RosWorkerClient.for_runtime_dir(gw.runtime_dir)
+        # The worker must know the publisher, or the read answers "not in graph" at once.
+        poll_until(lambda: any(t["name"] == "/sup_test/silent" and t["publisher_count"]
+                               for t in client.call("graph", timeout=2)["topics"]),
+                   30, interval=0.1, message="the silent publisher in the graph")
 
         def read():
             try:
@@ -200,7 +205,6 @@ def test_in_flight_request_finishes_on_sigterm():
             except requests.RequestException as exc:
                 answer["exc"] = exc
 
-        client = RosWorkerClient.for_runtime_dir(gw.runtime_dir)
         t = threading.Thread(target=read)
         t.start()
         try:
