@@ -158,6 +158,7 @@ class Controller(threading.Thread):
         self.answers: list[Answer] = []
         self.error: BaseException | None = None
         self.drop_waits: list[float] = []
+        self.subscribed_seen = 0   # cycles in which the helper saw the gateway's subscription
 
     def _until(self, predicate, what: str, client: Client) -> None:
         deadline = time.monotonic() + STEP_TIMEOUT
@@ -181,6 +182,7 @@ class Controller(threading.Thread):
                 self.marks[(c, "B")] = time.monotonic()
                 self.node.cmd("pub", id=self.topic, topic=self.topic, type=INT32, rate=20, value={"data": c})
                 self._until(lambda i, c=c: i[0] == "data" and i[1:3] == (INT32, c), f"Int32 {c}", client)
+                self.subscribed_seen += self.node.cmd("count", topic=self.topic)["subscribers"] >= 1
                 self.marks[(c, "gone")] = time.monotonic()
                 self.node.cmd("unpub", id=self.topic)
                 self._until(lambda i: i[3] in ("no-publishers", "not-in-graph"), "no publishers", client)
@@ -227,9 +229,16 @@ def stale_label(label: str, seen: int, finished: float, marks: dict[tuple[int, s
 
 
 def check_topic(topic: str, answers: list[Answer], marks: dict[tuple[int, str], float]) -> list[str]:
-    """The consistency rules of the module docstring, for one topic's answers."""
+    """The consistency rules of the module docstring, for one topic's answers.
+
+    A data answer has an exact version.  A "no publishers" answer was decided
+    at some moment between its start and its end, so it stands for any state
+    from ``state_at(started)`` to ``state_at(finished)``.  An answer goes back
+    in time when an answer that finished before it started had a higher
+    (lowest possible) version than its highest possible one.
+    """
     faults = []
-    versioned = []  # (started, finished, version, answer)
+    versioned = []  # (started, finished, lowest version, highest version, answer)
     for a in answers:
         if a.info is None:
             continue
@@ -237,22 +246,24 @@ def check_topic(topic: str, answers: list[Answer], marks: dict[tuple[int, str], 
             faults.append(f"inconsistent answer {a.info}")
             continue
         v = version(a.info)
-        if v is None and a.info[3] in ("no-publishers", "not-in-graph"):
-            v = state_at(marks, a.started)
         if v is not None:
-            versioned.append((a.started, a.finished, v, a))
+            versioned.append((a.started, a.finished, v, v, a))
+        elif a.info[3] in ("no-publishers", "not-in-graph"):
+            low, high = state_at(marks, a.started), state_at(marks, a.finished)
+            if high is not None:
+                versioned.append((a.started, a.finished, -1 if low is None else low, high, a))
     by_finish = sorted(versioned, key=lambda x: x[1])
     finishes = [x[1] for x in by_finish]
     prefix_max, best = [], (-1, None)
     for x in by_finish:
         if x[2] > best[0]:
-            best = (x[2], x[3])
+            best = (x[2], x[4])
         prefix_max.append(best)
-    for started, _, v, a in versioned:
+    for started, _, _, high, a in versioned:
         i = bisect.bisect_left(finishes, started) - 1
-        if i >= 0 and prefix_max[i][0] > v:
+        if i >= 0 and prefix_max[i][0] > high:
             seen, earlier = prefix_max[i]
-            faults.append(f"went back in time: version {v} ({a.info}) after version {seen} "
+            faults.append(f"went back in time: version ≤{high} ({a.info}) after version {seen} "
                           f"({earlier.info}) was visible")
     for a in answers:
         if a.info is None or a.info[0] != "metadata_only" or a.info[1] is None:
@@ -307,6 +318,8 @@ def test_publisher_churn_never_serves_stale_types_and_drops_subscriptions(gatewa
             mine = [a for a in everything if a.path.endswith(topic)]
             faults += [f"{topic}: {f}" for f in check_topic(topic, mine, ctl.marks)]
         assert not faults, f"{len(faults)} stale answers, e.g. {faults[:5]}"
+        # The independent observer does see the gateway's subscriptions (so "0" above means gone).
+        assert sum(c.subscribed_seen for c in controllers) > 0
         assert probe.samples and all(s[2] == 200 for s in probe.samples)
         assert probe.max_of("x-medkit-data-provider", "pool_size") <= POOL
         assert restarts_in(gw.output) == 0
@@ -343,6 +356,9 @@ def test_check_topic_catches_stale_answers():
     assert check_topic("/churn/x", gap, marks) == []
     assert "went back in time" in check_topic(
         "/churn/x", gap + [ans(1.25, 1.3, ("data", STRING, "c1", None))], marks)[0]
+    # A read started before the drop and answered after it: fine.
+    across = good[:2] + [ans(1.9, 2.1, ("metadata_only", None, {}, "no-publishers"))]
+    assert check_topic("/churn/x", across, marks) == []
     mixed = [ans(0.1, 0.2, ("data", STRING, 5, None))]
     assert "inconsistent" in check_topic("/churn/x", mixed, marks)[0]
     # Overlapping reads may finish in any order: no fault.

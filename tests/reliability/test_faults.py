@@ -42,7 +42,7 @@ from tests.support.procs import Proc, RosNode, poll_until
 LIVE = [f"/faults/live{i}" for i in range(4)]
 CLIENTS = scaled(16, 32)
 REPEAT = scaled(1, 3)
-SETTLE = scaled(2.0, 8.0)   # seconds of load after each recovery
+SETTLE = scaled(3.5, 8.0)   # seconds of load after each recovery (the checks look at 2 s on)
 LEASE_WAIT = scaled(20, 60)
 # The short form gives the victim's DDS participant a 3 s lease (a Fast DDS profile of its
 # own process), so the wait is short; the long form keeps the default lease (20 s).
