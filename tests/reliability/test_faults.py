@@ -17,6 +17,7 @@ and checks:
 
 from __future__ import annotations
 
+import collections
 import json
 import os
 import signal
@@ -24,13 +25,16 @@ import sys
 import time
 
 import psutil
+import pytest
 
 from tests.reliability.load import (
     LONG,
     Answer,
+    Client,
     HealthProbe,
     Load,
     Req,
+    error_key,
     gateway_procs,
     memory,
     record,
@@ -117,10 +121,13 @@ def common_checks(gw, answers: list[Answer], probe: HealthProbe, recovered: list
     # Hang catcher: a sample is bounded by sample_timeout + IPC margin, anything else by ipc_timeout.
     assert max(a.elapsed for a in answers) < 15, max(a.elapsed for a in answers)
     # Once recovered (and a moment for every HTTP worker to reconnect), nothing is unavailable.
+    # (A new ROS worker needs a moment to discover the running nodes: their apps may answer 404
+    # meanwhile; see test_running_app_is_not_reported_gone_after_a_rosworker_restart.)
     last = max(recovered)
     late = [a for a in answers if a.started > last + 2.0]
     assert late, "no load after the last recovery"
-    bad = [a.key for a in late if a.key not in ("200", "503 x-medkit-cold-wait-cap-exceeded")]
+    bad = [a.key for a in late if a.key not in ("200", "503 x-medkit-cold-wait-cap-exceeded")
+           and not (a.key == "404 entity-not-found" and a.started < last + 5.0)]
     assert not bad, f"after recovery: {bad[:10]}"
     assert any(a.key == "200" and a.kind == "sample" for a in late)
     # /health answered all along, quickly (a hang catcher: it never waits on ROS work).
@@ -130,7 +137,21 @@ def common_checks(gw, answers: list[Answer], probe: HealthProbe, recovered: list
     assert gw.proc.poll() is None
 
 
-def run_with_faults(gw, host: str, inject, recover, resets: bool = False):
+def vanished(answers: list[Answer], faults: list[float]) -> str:
+    """How long the running app ``fault_pubs`` was answered 404 after a fault (the new ROS worker
+    has not discovered it yet), for the figures."""
+    gone = [a for a in answers if a.key == "404 entity-not-found" and "fault_pubs" in a.path]
+    if not gone:
+        return "no 404 for the running app"
+    spans = []
+    for f in faults:
+        mine = [a.finished - f for a in gone if a.started >= f]
+        if mine:
+            spans.append(max(mine))
+    return f"running app answered 404 {len(gone)}x, up to {max(spans, default=0):.1f} s after the fault"
+
+
+def run_with_faults(gw, host: str, inject, recover):
     """Load; ``REPEAT`` times: inject the fault, wait for recovery, settle. Returns the figures input."""
     load = Load(gw.port, plan_for(host), CLIENTS)
     rss_before = memory(gw.pid)
@@ -160,7 +181,8 @@ def test_rosworker_sigkill_under_load(gateways, nodes):
                                                                     lambda old: back_after(gw, old))
     record("fault: ROS worker SIGKILL", answers, probe=probe, restarts=restarts_in(gw.output),
            rss_before=rss_before, rss_after=memory(gw.pid),
-           note=f"{REPEAT}x; back after ≤{max(r - f for f, r in zip(faults, recovered, strict=True)):.1f} s")
+           note=f"{REPEAT}x; back after ≤{max(r - f for f, r in zip(faults, recovered, strict=True)):.1f} s; "
+                + vanished(answers, faults))
     common_checks(gw, answers, probe, recovered)
     assert restarts_in(gw.output) == REPEAT
     # During the outage: 503 unavailable (with Retry-After, checked by `problem`) or a 504 for
@@ -194,7 +216,7 @@ def test_rosworker_sigstop_under_load(gateways, nodes):
     record("fault: ROS worker SIGSTOP", answers, probe=probe, restarts=restarts_in(gw.output),
            rss_before=rss_before, rss_after=memory(gw.pid),
            note=f"{REPEAT}x, watchdog grace 3 s; replaced after ≤"
-                f"{max(r - f for f, r in zip(faults, recovered, strict=True)):.1f} s")
+                f"{max(r - f for f, r in zip(faults, recovered, strict=True)):.1f} s; " + vanished(answers, faults))
     common_checks(gw, answers, probe, recovered)
     assert restarts_in(gw.output) == REPEAT
     assert {a.status for a in answers} <= {200, 404, 503, 504}
@@ -283,3 +305,26 @@ def test_killed_publisher_is_served_until_its_lease_expires_then_metadata_only(g
     assert {s[2] for s in seen[first_meta:]} <= {"no-publishers", "not-in-graph"}
     common_checks(gw, answers, probe, [killed])
     assert restarts_in(gw.output) == 0
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "BUG: a new ROS worker answers `graph` before DDS discovery has found the running nodes, and the "
+    "HTTP side takes that graph as the truth: after a restart, apps of nodes that never left answer "
+    "404 entity-not-found for about 1-2 s (instead of 503 + Retry-After while discovery settles)."))
+def test_running_app_is_not_reported_gone_after_a_rosworker_restart(gateways, nodes):
+    gw, host = start(gateways, nodes)
+    os.kill(worker_pid(gw), signal.SIGKILL)
+    client = Client(gw.port, timeout=10)
+    seen: list[str] = []
+    until = time.monotonic() + 8.0
+    try:
+        while time.monotonic() < until:
+            status, _, body = client.request("GET", "/api/v1/apps/fault_pubs")
+            seen.append(error_key(status, body))
+            time.sleep(0.05)
+    finally:
+        client.close()
+    record("fault: app 404 after restart", requests=len(seen),
+           statuses=dict(collections.Counter(seen)), note="GET /apps/fault_pubs every 50 ms for 8 s after SIGKILL")
+    assert seen[-1] == "200"
+    assert "404 entity-not-found" not in seen, collections.Counter(seen)
