@@ -26,6 +26,37 @@ from .errors import IpcError
 CONNECT_WAIT = 0.25
 
 
+class _Channel:
+    """One thread's DEALER socket, a monitor of its disconnections, and a poller over both."""
+
+    __slots__ = ("sock", "mon", "poller")
+
+    def __init__(self, ctx: zmq.Context, endpoint: str):
+        sock = ctx.socket(zmq.DEALER)
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.setsockopt(zmq.IMMEDIATE, 1)       # no queueing while the worker is down
+        sock.setsockopt(zmq.SNDHWM, 64)
+        sock.setsockopt(zmq.RCVHWM, 256)
+        sock.setsockopt(zmq.MAXMSGSIZE, protocol.MAX_REPLY_FRAME)
+        sock.setsockopt(zmq.RECONNECT_IVL, 50)
+        sock.setsockopt(zmq.RECONNECT_IVL_MAX, 500)
+        self.mon = sock.get_monitor_socket(zmq.EVENT_DISCONNECTED)
+        sock.connect(endpoint)
+        self.sock = sock
+        self.poller = zmq.Poller()
+        self.poller.register(sock, zmq.POLLIN)
+        self.poller.register(self.mon, zmq.POLLIN)
+
+    def forget_disconnects(self) -> None:
+        """Drop disconnection events of earlier connections (a restarted worker)."""
+        while self.mon.getsockopt(zmq.EVENTS) & zmq.POLLIN:
+            self.mon.recv_multipart(zmq.NOBLOCK)
+
+    def close(self) -> None:
+        self.mon.close(linger=0)
+        self.sock.close(linger=0)
+
+
 class RosWorkerClient:
     def __init__(self, endpoint: str):
         self.endpoint = endpoint
@@ -40,7 +71,7 @@ class RosWorkerClient:
     def for_runtime_dir(cls, runtime_dir: str) -> RosWorkerClient:
         return cls(protocol.endpoint(runtime_dir))
 
-    def _socket(self) -> zmq.Socket:
+    def _channel(self) -> _Channel:
         pid = os.getpid()
         if self._pid != pid:
             with self._lock:
@@ -50,38 +81,33 @@ class RosWorkerClient:
                     self._local = threading.local()
                     self._sockets = []
                     self._pid = pid
-        sock = getattr(self._local, "sock", None)
-        if sock is None:
-            sock = self._ctx.socket(zmq.DEALER)
-            sock.setsockopt(zmq.LINGER, 0)
-            sock.setsockopt(zmq.IMMEDIATE, 1)       # no queueing while the worker is down
-            sock.setsockopt(zmq.SNDHWM, 64)
-            sock.setsockopt(zmq.RCVHWM, 256)
-            sock.setsockopt(zmq.MAXMSGSIZE, protocol.MAX_REPLY_FRAME)
-            sock.setsockopt(zmq.RECONNECT_IVL, 50)
-            sock.setsockopt(zmq.RECONNECT_IVL_MAX, 500)
-            sock.connect(self.endpoint)
-            self._local.sock = sock
+        channel = getattr(self._local, "channel", None)
+        if channel is None:
+            channel = _Channel(self._ctx, self.endpoint)
+            self._local.channel = channel
             with self._lock:
-                self._sockets = [s for s in self._sockets if not s.closed] + [sock]
-        return sock
+                self._sockets = [s for s in self._sockets if not s.closed] + [channel.sock, channel.mon]
+        return channel
 
-    def _reset_socket(self) -> None:
-        sock = getattr(self._local, "sock", None)
-        if sock is not None:
-            sock.close(linger=0)
-            self._local.sock = None
+    def _reset_channel(self) -> None:
+        channel = getattr(self._local, "channel", None)
+        if channel is not None:
+            channel.close()
+            self._local.channel = None
 
     def call(self, cmd: str, args: dict[str, Any] | None = None, timeout: float = 2.0,
              connect_wait: float = CONNECT_WAIT) -> dict[str, Any]:
         """Send one command and wait up to ``timeout`` seconds for its reply.
 
         Returns the ``result`` map; raises :class:`IpcError` with code
-        ``unavailable`` (no ROS worker connected), ``deadline-exceeded`` (no
-        answer in time) or whatever the ROS worker answered.
+        ``unavailable`` (no ROS worker connected, or it went away while we
+        waited), ``deadline-exceeded`` (no answer in time) or whatever the ROS
+        worker answered.
         """
         deadline = time.monotonic() + timeout
-        sock = self._socket()
+        channel = self._channel()
+        sock = channel.sock
+        channel.forget_disconnects()
         rid = next(self._ids)
         frame = protocol.pack({
             "v": protocol.VERSION, "id": rid, "cmd": cmd, "args": args or {},
@@ -99,21 +125,24 @@ class RosWorkerClient:
                 raise IpcError("unavailable", "The ROS worker is not running; retry shortly") from None
         while True:
             remaining = deadline - time.monotonic()
-            if remaining <= 0 or not sock.poll(max(1, int(remaining * 1000)), zmq.POLLIN):
-                if sock.poll(0, zmq.POLLOUT) == 0:
-                    # The peer went away while we waited: say so rather than "timeout".
-                    raise IpcError("unavailable", "The ROS worker went away; retry shortly")
+            events = channel.poller.poll(max(1, int(remaining * 1000))) if remaining > 0 else ()
+            if not events:
                 raise IpcError(
                     "deadline-exceeded",
                     f"The ROS worker did not answer {cmd!r} within {timeout:g} s",
                     {"command": cmd, "timeout_s": timeout},
                 )
+            if not any(s is sock for s, _ in events):
+                # The connection dropped while we waited: the worker died with our request.
+                channel.forget_disconnects()
+                raise IpcError("unavailable", f"The ROS worker went away while handling {cmd!r}; "
+                                              "retry shortly", {"command": cmd})
             try:
                 reply = protocol.unpack(sock.recv(zmq.NOBLOCK), protocol.MAX_REPLY_FRAME)
             except zmq.Again:
                 continue
             except ValueError:
-                self._reset_socket()
+                self._reset_channel()
                 raise IpcError("internal", "Malformed reply from the ROS worker") from None
             if reply.get("id") != rid:
                 continue  # a late reply to an earlier, timed-out call
