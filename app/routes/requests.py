@@ -14,7 +14,7 @@ from urllib.parse import unquote_to_bytes, urlsplit
 
 import orjson
 from flask import current_app, request
-from werkzeug.exceptions import RequestEntityTooLarge
+from werkzeug.exceptions import HTTPException, RequestEntityTooLarge
 
 from ipc import protocol
 from ipc.topics import InvalidTopic, normalize_topic
@@ -94,12 +94,25 @@ def _field_error(message: str, field: str) -> ApiError:
 
 
 def _read_body() -> bytes:
-    """The request body; 413 past ``MAX_CONTENT_LENGTH``, with or without a Content-Length.
+    """The request body; 413 past ``MAX_CONTENT_LENGTH``, 400 when it cannot be read.
 
     With a Content-Length Werkzeug refuses an oversized body before reading
     it.  Without one (a chunked upload) Werkzeug would silently cut the body
-    at the limit, so one byte more than the limit is read to tell.
+    at the limit, so one byte more than the limit is read to tell.  A body
+    that breaks its own framing (a bad chunk size, a chunk without its CRLF,
+    fewer bytes than announced) is the client's error, whatever exception the
+    server's reader uses to say so.
     """
+    try:
+        return _read_limited_body()
+    except (RequestEntityTooLarge, HTTPException):
+        raise
+    except Exception as exc:  # gunicorn's NoMoreData, InvalidChunkSize, ChunkMissingTerminator …
+        raise ApiError(400, "invalid-request", "Request body could not be read",
+                       {"details": f"malformed request body ({type(exc).__name__})"}) from None
+
+
+def _read_limited_body() -> bytes:
     if request.content_length is not None:
         return request.get_data(cache=False)
     limit = current_app.config["MAX_CONTENT_LENGTH"]
