@@ -131,8 +131,10 @@ def common_checks(gw, answers: list[Answer], probe: HealthProbe, recovered: list
     assert not bad, f"after recovery: {bad[:10]}"
     assert any(a.key == "200" and a.kind == "sample" for a in late)
     # /health answered all along, quickly (a hang catcher: it never waits on ROS work).
-    assert probe.samples and all(s[2] == 200 for s in probe.samples), \
-        {s[2] for s in probe.samples}
+    # (the probe's own connection may be one the killed HTTP worker held)
+    probe_bad = [s for s in probe.samples if s[2] != 200
+                 and not any(s[0] <= t + 1.0 and s[0] + s[1] >= t for t in resets_allowed_at)]
+    assert probe.samples and not probe_bad, probe_bad[:5]
     assert probe.worst_ms() < 5000
     assert gw.proc.poll() is None
 
@@ -316,7 +318,7 @@ def test_running_app_is_not_reported_gone_after_a_rosworker_restart(gateways, no
     os.kill(worker_pid(gw), signal.SIGKILL)
     client = Client(gw.port, timeout=10)
     seen: list[str] = []
-    until = time.monotonic() + 8.0
+    until = time.monotonic() + 6.0
     try:
         while time.monotonic() < until:
             status, _, body = client.request("GET", "/api/v1/apps/fault_pubs")
@@ -325,6 +327,6 @@ def test_running_app_is_not_reported_gone_after_a_rosworker_restart(gateways, no
     finally:
         client.close()
     record("fault: app 404 after restart", requests=len(seen),
-           statuses=dict(collections.Counter(seen)), note="GET /apps/fault_pubs every 50 ms for 8 s after SIGKILL")
+           statuses=dict(collections.Counter(seen)), note="GET /apps/fault_pubs every 50 ms for 6 s after SIGKILL")
     assert seen[-1] == "200"
     assert "404 entity-not-found" not in seen, collections.Counter(seen)

