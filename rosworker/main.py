@@ -27,6 +27,9 @@ STATE_FILE = "pool.json"
 STATE_SAVE_EVERY = 1.0
 REWARM_FOR = 30.0    # seconds to keep trying to re-subscribe topics pooled before a restart
 REWARM_RETRY = 0.25
+# Discovery settles before the socket is bound: at least SETTLE_MIN, until the graph
+# has not changed for SETTLE_QUIET, at most SETTLE_MAX seconds.
+SETTLE_MIN, SETTLE_QUIET, SETTLE_MAX = 1.0, 0.5, 3.0
 
 log = logging.getLogger("sovd.rosworker")
 
@@ -140,6 +143,7 @@ class Worker:
                     executor.call_later(seconds, tick)
             executor.call_later(seconds, tick)
 
+        self._settle_discovery(node)
         graph.tick()
         rewarm = pool.load_state()
         every(cfg.graph_poll_tick / 1000, graph.tick)
@@ -174,6 +178,26 @@ class Worker:
             zctx.destroy(linger=0)
         log.info("ROS worker stopped (signal %s)", self._signal)
         return EXIT_OK
+
+    def _settle_discovery(self, node) -> None:
+        """Wait until DDS discovery has found the running graph before answering anyone.
+
+        A graph answered too early would tell the HTTP side that nodes which
+        never left are gone (404).  Until the socket is bound, clients get 503
+        ``unavailable`` with Retry-After instead, which is the truth.
+        """
+        started = time.monotonic()
+        last, quiet_since = None, started
+        while self._signal is None:
+            now = time.monotonic()
+            seen = (sorted(node.get_node_names_and_namespaces()),
+                    sorted((n, tuple(t)) for n, t in node.get_topic_names_and_types()))
+            if seen != last:
+                last, quiet_since = seen, now
+            if now - started >= SETTLE_MAX or (now - started >= SETTLE_MIN and now - quiet_since >= SETTLE_QUIET):
+                break
+            time.sleep(0.05)
+        log.debug("discovery settled after %.2f s", time.monotonic() - started)
 
     def _rewarm(self, executor, pool, topics: list[str], until: float) -> None:
         """Subscribe again to the topics pooled before a restart, as their publishers are discovered."""

@@ -309,10 +309,6 @@ def test_killed_publisher_is_served_until_its_lease_expires_then_metadata_only(g
     assert restarts_in(gw.output) == 0
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG: a new ROS worker answers `graph` before DDS discovery has found the running nodes, and the "
-    "HTTP side takes that graph as the truth: after a restart, apps of nodes that never left answer "
-    "404 entity-not-found for about 1-2 s (instead of 503 + Retry-After while discovery settles)."))
 def test_running_app_is_not_reported_gone_after_a_rosworker_restart(gateways, nodes):
     gw, host = start(gateways, nodes)
     os.kill(worker_pid(gw), signal.SIGKILL)
