@@ -1,15 +1,26 @@
-"""The ROS worker's IPC thread: the ROUTER socket, the lock, and the front of the queue.
+"""The ROS worker's IPC thread: the ROUTER socket, the lock, and the stand-in front.
 
 This thread never touches rclpy.  It
 
 - holds an exclusive ``flock`` on ``<runtime_dir>/rosworker.lock`` before it
   binds, so a second worker on the same directory cannot steal the socket;
-- decodes requests, drops frames that are not requests (counted), answers
-  malformed ones with an error, answers ``ping``/``stats`` itself at once,
-  and queues everything else for the ROS thread (``backpressure`` when full);
-- forwards the ROS thread's replies (which arrive on the inproc pair) to the
-  clients;
-- checks the watchdog every ``WATCHDOG_CHECK`` seconds.
+- binds the ROUTER and shares it with the ROS thread: whoever holds the
+  executor's ``front_lock`` serves it (see ``rosworker/executor.py``).  The
+  ROS thread normally does, so that a warm sample is read, answered and
+  sent back by one thread.  This thread serves it (``front``) from start-up
+  until the ROS thread claims it (``back`` on the reply pair), when the ROS
+  thread hands it over (``take``: someone waits on a cold topic), and when a
+  task has run longer than ``TAKEOVER_AFTER_MS`` (it takes the lock, which the
+  ROS thread never holds while it works), so that ``ping``/``stats`` never wait
+  behind ROS work;
+- as the front, decodes requests (:meth:`IpcServer._receive`, the same code
+  the ROS thread runs when it is the front): drops frames that are not
+  requests (counted), answers malformed ones with an error, answers
+  ``ping``/``stats`` at once, queues everything else for the ROS thread
+  (``backpressure`` when full), and forwards the ROS thread's replies (which
+  then arrive on the inproc pair) to the clients;
+- checks the watchdog every ``WATCH_TICK`` (not the front) or
+  ``WATCHDOG_CHECK`` (the front) seconds.
 """
 
 from __future__ import annotations
@@ -26,9 +37,16 @@ import zmq
 from . import protocol
 from .errors import IpcError
 
+# One-frame signals from the ROS thread on the reply pair (replies have two frames).
+TAKE = b"take"   # serve the ROUTER: the ROS thread stops polling it (cold waiters, shutdown)
+BACK = b"back"   # hand it back, after forwarding the replies that came before
+
 log = logging.getLogger("sovd.rosworker.ipc")
 
 WATCHDOG_CHECK = 0.05
+WATCH_TICK = 0.02          # seconds between looks at the ROS thread while it is the front
+TAKEOVER_AFTER_MS = 20     # a task running this long hands the socket to this thread
+HANDOVER_WAIT = 1.0        # seconds to wait for the lock the ROS thread gave away
 
 
 class LockHeld(RuntimeError):
@@ -77,6 +95,7 @@ class IpcServer:
         self._finished = threading.Event()  # the ROS thread is done: flush and exit
         self._ready = threading.Event()
         self._error: BaseException | None = None
+        self._front = False                 # this thread serves the ROUTER (see the docstring)
         self._thread = threading.Thread(target=self._run, name="ipc", daemon=True)
 
     def start(self, timeout: float = 5.0) -> None:
@@ -96,7 +115,7 @@ class IpcServer:
 
     # ---- the thread ---------------------------------------------------------------------
     def _bind(self) -> tuple[zmq.Socket, zmq.Socket]:
-        poke = self.executor.bind_poke()
+        pair = self.executor.bind_replies()
         router = self.zctx.socket(zmq.ROUTER)
         router.setsockopt(zmq.LINGER, 500)
         router.setsockopt(zmq.MAXMSGSIZE, protocol.MAX_FRAME)
@@ -111,53 +130,97 @@ class IpcServer:
         finally:
             os.umask(old_umask)
         os.chmod(path, 0o600)
-        return router, poke
+        return router, pair
 
     def _run(self) -> None:
+        lock = self.executor.front_lock
+        lock.acquire()  # the front until the ROS thread claims the socket
         try:
-            router, poke = self._bind()
+            router, pair = self._bind()
         except BaseException as exc:
             self._error = exc
+            lock.release()
             self._ready.set()
             return
+        self.executor.attach_front(router, self._receive)
         self._ready.set()
-        poller = zmq.Poller()
-        poller.register(router, zmq.POLLIN)
-        poller.register(poke, zmq.POLLIN)
+        self._front = True
+        front_poller = zmq.Poller()
+        front_poller.register(router, zmq.POLLIN)
+        front_poller.register(pair, zmq.POLLIN)
+        watch_poller = zmq.Poller()
+        watch_poller.register(pair, zmq.POLLIN)
         try:
             while True:
-                events = dict(poller.poll(int(WATCHDOG_CHECK * 1000)))
-                if poke in events:
-                    self._forward_replies(poke, router)
-                if router in events:
-                    self._receive(router)
+                if self._front:
+                    events = dict(front_poller.poll(int(WATCHDOG_CHECK * 1000)))
+                    if pair in events:
+                        self._from_ros(pair, router)
+                    if self._front and router in events:
+                        self._receive(router)
+                else:
+                    if watch_poller.poll(int(WATCH_TICK * 1000)):
+                        self._from_ros(pair, router)
+                    elif self.stats.current_task_age_ms() >= TAKEOVER_AFTER_MS and lock.acquire(blocking=False):
+                        self._front = True  # the ROS thread is stuck in a task: stand in for it
                 self.stats.check_watchdog()
                 if self._finished.is_set():
-                    self._forward_replies(poke, router)
+                    # The ROS thread is done and has handed the socket over: flush and exit.
+                    if self._front or lock.acquire(timeout=HANDOVER_WAIT):
+                        self._front = True
+                        self._from_ros(pair, router)
                     break
         finally:
+            if self._front:
+                lock.release()
             router.close(linger=500)
-            poke.close(linger=0)
+            pair.close(linger=0)
             path = os.path.join(self.runtime_dir, protocol.SOCKET_NAME)
             try:
                 os.unlink(path)
             except OSError:
                 pass
 
-    def _forward_replies(self, poke: zmq.Socket, router: zmq.Socket) -> None:
+    def _from_ros(self, pair: zmq.Socket, router: zmq.Socket) -> None:
+        """Handle what the ROS thread sent, in order: replies to forward, ``take``, ``back``."""
+        lock = self.executor.front_lock
         for _ in range(10000):
+            if not pair.get(zmq.EVENTS) & zmq.POLLIN:
+                return
             try:
-                frames = poke.recv_multipart(zmq.NOBLOCK, copy=False)
+                frames = pair.recv_multipart(zmq.NOBLOCK, copy=False)
             except zmq.Again:
                 return
-            if len(frames) == 2:
-                try:
-                    router.send_multipart(frames, zmq.NOBLOCK, copy=False)
-                except zmq.ZMQError:
-                    pass  # the client went away; its reply has no one to go to
+            if len(frames) == 1:
+                signal = frames[0].bytes
+                if signal == TAKE and not self._front:
+                    if not lock.acquire(timeout=HANDOVER_WAIT):
+                        log.error("the ROS thread handed the IPC socket over but kept its lock")
+                        continue
+                    self._front = True
+                elif signal == BACK and self._front and not self._finished.is_set():
+                    self._front = False
+                    lock.release()
+                continue  # a stale take/back: the state it asks for is already there
+            if len(frames) != 2:
+                continue
+            if not self._front:
+                # A reply sent while we were not the front: the ROS thread lost the lock to
+                # a take-over that has not happened yet here; take the socket now.
+                if not lock.acquire(timeout=HANDOVER_WAIT):
+                    log.error("could not take the IPC socket to forward a reply")
+                    continue
+                self._front = True
+            try:
+                router.send_multipart(frames, zmq.NOBLOCK, copy=False)
+            except zmq.ZMQError:
+                pass  # the client went away; its reply has no one to go to
 
     def _receive(self, router: zmq.Socket) -> None:
+        """Read the requests waiting on the ROUTER (run by whichever thread is the front)."""
         for _ in range(1000):
+            if not router.get(zmq.EVENTS) & zmq.POLLIN:
+                return
             try:
                 frames = router.recv_multipart(zmq.NOBLOCK)
             except zmq.Again:

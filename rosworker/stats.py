@@ -2,9 +2,10 @@
 
 Counters are plain attributes written by the ROS thread (and, for the queue,
 by the IPC thread under the executor's lock).  Reading them never waits
-behind ROS work: ``snapshot()`` is called on the IPC thread and only reads
-integers.  ``current_task_age_ms`` is computed at read time from the start
-time of the task that is running now.
+behind ROS work: ``snapshot()`` is called by whichever thread serves the IPC
+socket (see ``rosworker/executor.py``) and only reads integers.
+``current_task_age_ms`` is computed at read time from the start time of the
+task that is running now.
 """
 
 from __future__ import annotations
