@@ -41,6 +41,7 @@ class GraphMonitor:
         self._snapshot: dict[str, Any] | None = None
         self._last_full = 0.0
         self._last_request = 0.0
+        self.nodes: list[str] = []  # fully qualified names of the other nodes, as of the last change
 
     def tick(self) -> None:
         names_types = self.node.get_topic_names_and_types()
@@ -50,6 +51,7 @@ class GraphMonitor:
         changed = fingerprint != self._fingerprint
         if changed:
             self._fingerprint = fingerprint
+            self.nodes = node_names(nodes, self.own)
             self._bump()
         full = changed or now - self._last_full >= FULL_CHECK_EVERY
         if full:
@@ -60,7 +62,7 @@ class GraphMonitor:
             # Endpoint changes that leave names and types alone (a node adds a
             # subscription to an existing topic) only show in the detail.
             fresh = self._build()
-            if _comparable(fresh) != _comparable(self._snapshot):
+            if fresh.pop("complete") and _comparable(fresh) != _comparable(self._snapshot):
                 self._bump()
                 fresh["generation"] = self.generation
                 self._snapshot = fresh
@@ -75,18 +77,23 @@ class GraphMonitor:
         if since is not None and since == self.generation and self._snapshot is not None:
             return {"generation": self.generation, "unchanged": True}
         if self._snapshot is None:
-            self._snapshot = self._build()
+            snapshot = self._build()
+            if snapshot.pop("complete"):
+                self._snapshot = snapshot  # an incomplete one is rebuilt on the next request
+            return snapshot
         return self._snapshot
 
     def _build(self) -> dict[str, Any]:
         own_pubs: collections.Counter = collections.Counter()
         own_subs: collections.Counter = collections.Counter()
         nodes = []
+        complete = True
         for name, namespace in sorted(self.node.get_node_names_and_namespaces(), key=lambda x: (x[1], x[0])):
             try:
                 pubs = self.node.get_publisher_names_and_types_by_node(name, namespace)
                 subs = self.node.get_subscriber_names_and_types_by_node(name, namespace)
-            except Exception:  # the node left between the two calls
+            except Exception:  # the node left between the two calls, or is half discovered
+                complete = False
                 continue
             if (name, namespace) == self.own:
                 own_pubs.update(t for t, _ in pubs)
@@ -105,7 +112,13 @@ class GraphMonitor:
             if pubs or subs:
                 topics.append({"name": name, "types": list(types), "publisher_count": pubs,
                                "subscriber_count": subs})
-        return {"generation": self.generation, "unchanged": False, "nodes": nodes, "topics": topics}
+        return {"generation": self.generation, "unchanged": False, "nodes": nodes, "topics": topics,
+                "complete": complete}
+
+
+def node_names(nodes: list[tuple[str, str]], own: tuple[str, str]) -> list[str]:
+    """Fully qualified names of ``(name, namespace)`` pairs, without our own node."""
+    return sorted((ns.rstrip("/") + "/" + name) for name, ns in nodes if (name, ns) != own)
 
 
 def _comparable(snapshot: dict[str, Any]) -> Any:

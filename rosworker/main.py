@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
 import signal
 import sys
 import time
@@ -23,13 +22,12 @@ from importlib import metadata
 EXIT_OK = 0
 EXIT_CONFIG = 2
 EXIT_CANNOT_BOOT = 3
-STATE_FILE = "pool.json"
-STATE_SAVE_EVERY = 1.0
+STATE_SAVE_EVERY = 0.25  # seconds; only written when it changed
 REWARM_FOR = 30.0    # seconds to keep trying to re-subscribe topics pooled before a restart
 REWARM_RETRY = 0.25
 # Discovery settles before the socket is bound: at least SETTLE_MIN, until the graph
 # has not changed for SETTLE_QUIET, at most SETTLE_MAX seconds.
-SETTLE_MIN, SETTLE_QUIET, SETTLE_MAX = 1.0, 0.5, 3.0
+SETTLE_MIN, SETTLE_QUIET, SETTLE_MAX = 1.0, 0.5, 5.0
 
 log = logging.getLogger("sovd.rosworker")
 
@@ -104,6 +102,7 @@ class Worker:
         from .graph import GraphMonitor
         from .pool import TopicPool
         from .publishers import PublisherPool
+        from .state import RestartState
         from .stats import Stats
 
         cfg = self.cfg
@@ -121,8 +120,8 @@ class Worker:
         zctx = zmq.Context()
         executor = RosExecutor(context, zctx, stats, cfg.max_queue_depth)
         pool = TopicPool(node, executor, stats, max_pool_size=cfg.max_pool_size,
-                         cold_wait_cap=cfg.cold_wait_cap, idle_safety_net=cfg.idle_safety_net,
-                         state_file=os.path.join(cfg.runtime_dir, STATE_FILE))
+                         cold_wait_cap=cfg.cold_wait_cap, idle_safety_net=cfg.idle_safety_net)
+        state = RestartState(cfg.runtime_dir)
         graph = GraphMonitor(node, pool, stats)
         publishers = PublisherPool(node, executor, stats, cfg.max_publishers)
         Commands(executor, pool, graph, publishers, sample_timeout=cfg.sample_timeout,
@@ -143,13 +142,13 @@ class Worker:
                     executor.call_later(seconds, tick)
             executor.call_later(seconds, tick)
 
-        self._settle_discovery(node)
+        rewarm, known_nodes = state.load()
+        self._settle_discovery(node, set(known_nodes))
         graph.tick()
-        rewarm = pool.load_state()
         every(cfg.graph_poll_tick / 1000, graph.tick)
         if cfg.idle_safety_net:
             every(cfg.idle_sweep_tick, pool.sweep_idle)
-        every(STATE_SAVE_EVERY, pool.save_state)
+        every(STATE_SAVE_EVERY, lambda: state.save(list(pool.entries), graph.nodes))
         if rewarm:
             self._rewarm(executor, pool, rewarm, time.monotonic() + REWARM_FOR)
 
@@ -179,25 +178,34 @@ class Worker:
         log.info("ROS worker stopped (signal %s)", self._signal)
         return EXIT_OK
 
-    def _settle_discovery(self, node) -> None:
+    def _settle_discovery(self, node, expected: set[str]) -> None:
         """Wait until DDS discovery has found the running graph before answering anyone.
 
         A graph answered too early would tell the HTTP side that nodes which
         never left are gone (404).  Until the socket is bound, clients get 503
-        ``unavailable`` with Retry-After instead, which is the truth.
+        ``unavailable`` with Retry-After instead, which is the truth.  Settled
+        means: the nodes the previous worker knew (``expected``) are back, or
+        SETTLE_MAX passed (some of them really left); and the graph has not
+        changed for SETTLE_QUIET.
         """
+        from .graph import node_names
+
+        own = (node.get_name(), node.get_namespace())
         started = time.monotonic()
         last, quiet_since = None, started
         while self._signal is None:
             now = time.monotonic()
-            seen = (sorted(node.get_node_names_and_namespaces()),
-                    sorted((n, tuple(t)) for n, t in node.get_topic_names_and_types()))
+            nodes = node.get_node_names_and_namespaces()
+            seen = (sorted(nodes), sorted((n, tuple(t)) for n, t in node.get_topic_names_and_types()))
             if seen != last:
                 last, quiet_since = seen, now
-            if now - started >= SETTLE_MAX or (now - started >= SETTLE_MIN and now - quiet_since >= SETTLE_QUIET):
+            elapsed = now - started
+            found = expected.issubset(node_names(nodes, own))
+            if elapsed >= SETTLE_MAX or (found and elapsed >= SETTLE_MIN and now - quiet_since >= SETTLE_QUIET):
                 break
             time.sleep(0.05)
-        log.debug("discovery settled after %.2f s", time.monotonic() - started)
+        log.info("discovery settled after %.2f s (%d nodes)", time.monotonic() - started,
+                 len(last[0]) if last else 0)
 
     def _rewarm(self, executor, pool, topics: list[str], until: float) -> None:
         """Subscribe again to the topics pooled before a restart, as their publishers are discovered."""

@@ -19,9 +19,7 @@ ROS thread.
 from __future__ import annotations
 
 import collections
-import json
 import logging
-import os
 import time
 from typing import Any
 
@@ -76,19 +74,17 @@ class Entry:
 
 class TopicPool:
     def __init__(self, node, executor: RosExecutor, stats: Stats, *, max_pool_size: int,
-                 cold_wait_cap: int, idle_safety_net: float, state_file: str | None = None):
+                 cold_wait_cap: int, idle_safety_net: float):
         self.node = node
         self.executor = executor
         self.stats = stats
         self.max_pool_size = max_pool_size
         self.cold_wait_cap = cold_wait_cap
         self.idle_safety_net = idle_safety_net
-        self.state_file = state_file
         self.entries: collections.OrderedDict[str, Entry] = collections.OrderedDict()
         self.cold: dict[str, Entry] = {}           # entries with waiters
         self.unsupported: collections.OrderedDict[str, None] = collections.OrderedDict()
         self.last_types: collections.OrderedDict[str, str] = collections.OrderedDict()
-        self._state_dirty = False
         self.closing = False
         executor.cold_entries = lambda: list(self.cold.values())
         executor.on_ready = self._on_ready
@@ -216,7 +212,6 @@ class TopicPool:
             self.evict(oldest, "lru")
         self.entries[topic] = entry
         self.stats.pool_size = len(self.entries)
-        self._state_dirty = True
         return entry, "pooled"
 
     def _subscribe(self, entry: Entry, infos: list) -> None:
@@ -263,7 +258,6 @@ class TopicPool:
         self.stats.pool_size = len(self.entries)
         self.stats.evictions_total += 1
         self.stats.evictions[reason] = self.stats.evictions.get(reason, 0) + 1
-        self._state_dirty = True
         for waiter in list(entry.waiters):
             self._release(entry, waiter)
             waiter.task.reply(self._metadata(entry.topic, entry,
@@ -333,29 +327,6 @@ class TopicPool:
     def shutdown(self) -> None:
         for entry in list(self.entries.values()):
             self.evict(entry, "shutdown")
-
-    # ---- persistence (re-warm after a restart) ------------------------------------------
-    def save_state(self) -> None:
-        if not (self.state_file and self._state_dirty):
-            return
-        self._state_dirty = False
-        tmp = self.state_file + ".tmp"
-        try:
-            with open(tmp, "w") as fh:
-                json.dump({"topics": list(self.entries)}, fh)
-            os.replace(tmp, self.state_file)
-        except OSError as exc:
-            log.warning("could not save the pool list to %s: %s", self.state_file, exc)
-
-    def load_state(self) -> list[str]:
-        if not self.state_file:
-            return []
-        try:
-            with open(self.state_file) as fh:
-                topics = json.load(fh).get("topics", [])
-        except (OSError, ValueError, AttributeError):
-            return []
-        return [t for t in topics if isinstance(t, str)][-self.max_pool_size:]
 
 
 def _never_called(_msg) -> None:  # pragma: no cover - pooled subscriptions are never spun

@@ -197,7 +197,8 @@ def test_pooled_topics_are_subscribed_again_after_a_restart(nodes):
     runtime_dir = worker.runtime_dir
     try:
         worker.sample_data(topic)
-        poll_until(lambda: os.path.exists(os.path.join(runtime_dir, "pool.json")), 5, message="pool saved")
+        state = os.path.join(runtime_dir, "pool.json")
+        poll_until(lambda: os.path.exists(state) and topic in open(state).read(), 5, message="pool saved")
         worker.signal(9)
         worker.proc.wait(10)
         again = RosWorker(runtime_dir=runtime_dir)

@@ -25,7 +25,6 @@ import sys
 import time
 
 import psutil
-import pytest
 
 from tests.reliability.load import (
     LONG,
@@ -311,6 +310,11 @@ def test_killed_publisher_is_served_until_its_lease_expires_then_metadata_only(g
 
 def test_running_app_is_not_reported_gone_after_a_rosworker_restart(gateways, nodes):
     gw, host = start(gateways, nodes)
+    # Node names are discovered after the node's topics: wait until the app is known, and
+    # until the worker has noted it in the state its successor reads after a crash.
+    poll_until(lambda: gw.get("/apps/fault_pubs").status_code == 200, 30, message="app visible")
+    state = os.path.join(gw.runtime_dir, "pool.json")
+    poll_until(lambda: "/fault_pubs" in open(state).read(), 10, message="node in the restart state")
     os.kill(worker_pid(gw), signal.SIGKILL)
     client = Client(gw.port, timeout=10)
     seen: list[str] = []
