@@ -120,13 +120,13 @@ def common_checks(gw, answers: list[Answer], probe: HealthProbe, recovered: list
     # Hang catcher: a sample is bounded by sample_timeout + IPC margin, anything else by ipc_timeout.
     assert max(a.elapsed for a in answers) < 15, max(a.elapsed for a in answers)
     # Once recovered (and a moment for every HTTP worker to reconnect), nothing is unavailable.
-    # (A new ROS worker needs a moment to discover the running nodes: their apps may answer 404
-    # meanwhile; see test_running_app_is_not_reported_gone_after_a_rosworker_restart.)
     last = max(recovered)
     late = [a for a in answers if a.started > last + 2.0]
     assert late, "no load after the last recovery"
-    bad = [a.key for a in late if a.key not in ("200", "503 x-medkit-cold-wait-cap-exceeded")
-           and not (a.key == "404 entity-not-found" and a.started < last + 5.0)]
+    bad = [a.key for a in late if a.key not in ("200", "503 x-medkit-cold-wait-cap-exceeded")]
+    # The running app is never reported gone, during a fault or after it.
+    gone = [a for a in answers if a.key == "404 entity-not-found" and "fault_pubs" in a.path]
+    assert not gone, f"the running app answered 404 {len(gone)} times, e.g. {gone[:3]}"
     assert not bad, f"after recovery: {bad[:10]}"
     assert any(a.key == "200" and a.kind == "sample" for a in late)
     # /health answered all along, quickly (a hang catcher: it never waits on ROS work).
@@ -139,17 +139,16 @@ def common_checks(gw, answers: list[Answer], probe: HealthProbe, recovered: list
 
 
 def vanished(answers: list[Answer], faults: list[float]) -> str:
-    """How long the running app ``fault_pubs`` was answered 404 after a fault (the new ROS worker
-    has not discovered it yet), for the figures."""
+    """How long the running app ``fault_pubs`` was answered 404 after a fault, for the figures."""
     gone = [a for a in answers if a.key == "404 entity-not-found" and "fault_pubs" in a.path]
-    if not gone:
-        return "no 404 for the running app"
     spans = []
-    for f in faults:
-        mine = [a.finished - f for a in gone if a.started >= f]
-        if mine:
-            spans.append(max(mine))
-    return f"running app answered 404 {len(gone)}x, up to {max(spans, default=0):.1f} s after the fault"
+    for a in gone:
+        before = [f for f in faults if f <= a.started]
+        if before:
+            spans.append(a.finished - max(before))
+    if not spans:
+        return "the running app never answered 404"
+    return f"running app answered 404 {len(gone)}x, up to {max(spans):.1f} s after a fault"
 
 
 def run_with_faults(gw, host: str, inject, recover):
@@ -221,8 +220,8 @@ def test_rosworker_sigstop_under_load(gateways, nodes):
     common_checks(gw, answers, probe, recovered)
     assert restarts_in(gw.output) == REPEAT
     assert {a.status for a in answers} <= {200, 404, 503, 504}
-    # A frozen worker answers nothing: requests end in 504 at their deadline, not in a hang.
-    assert any(a.status == 504 for a in answers)
+    # A frozen worker answers nothing: requests end in 503/504 by their deadline, not in a hang.
+    assert any(a.status in (503, 504) for a in answers)
     for pid in stopped:
         assert not psutil.pid_exists(pid) or psutil.Process(pid).status() == psutil.STATUS_ZOMBIE
 

@@ -39,6 +39,7 @@ from tests.reliability.load import (
     record,
     scaled,
 )
+from tests.support.gateway import Gateway
 from tests.support.procs import RosNode, poll_until
 
 FUZZ_CASES = scaled(500, 5000)
@@ -52,7 +53,6 @@ def target():
     node = RosNode({"node": "hostile_pubs",
                     "publish": [{"topic": "/hostile/live", "type": "std_msgs/msg/Float64", "rate": 20}],
                     "subscribe": [{"topic": SINK, "type": "std_msgs/msg/String"}]})
-    from tests.support.gateway import Gateway
     gw = Gateway("--allow-publish", "--max-body-bytes", str(LIMIT), "--log-level", "info")
     try:
         host = gw.get("/components").json()["items"][0]["id"]
@@ -498,7 +498,7 @@ def test_slow_clients_do_not_starve_the_http_workers(gateways):
     assert answers == [200] * len(answers), answers
 
 
-@pytest.mark.xfail(strict=True, reason=(
+@pytest.mark.xfail(strict=False, reason=(  # usually fails; under heavy machine load it sometimes passes
     "BUG/limitation: gunicorn's gthread worker gives every new connection a thread for up to 5 s "
     "(DEFAULT_WORKER_DATA_TIMEOUT) before parking it, so connections that send nothing (a port "
     "scan, browser preconnects) starve workers x threads for connections/threads x 5 s. nginx in "

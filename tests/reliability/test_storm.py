@@ -15,6 +15,7 @@ over, no cold waiter and no queued task is left behind.
 from __future__ import annotations
 
 import collections
+import json
 
 from tests.reliability.load import (
     HealthProbe,
@@ -75,7 +76,6 @@ def plan_for(host: str):
 
 def data_status(req, status, headers, body):
     if status == 200 and req.kind in ("warm", "cold", "silent", "unpublished", "nonexistent"):
-        import json
         return json.loads(body)["x-medkit"]["status"]
     return None
 
