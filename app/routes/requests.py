@@ -63,6 +63,8 @@ def topic_from_data_id(data_id: str) -> str:
 
 def bytes_mode() -> str:
     """``array`` (default) or ``base64`` from ``?bytes=``."""
+    if not request.environ.get("QUERY_STRING"):
+        return "array"  # the common case, without parsing a query string
     mode = request.args.get("bytes", "array")
     if mode not in BYTES_MODES:
         raise ApiError(400, "invalid-parameter", "Invalid value of query parameter 'bytes'",
