@@ -97,7 +97,8 @@ def run_wrk(wrk: str, url: str, connections: int, seconds: float) -> LoadResult:
     n = raw["requests"]
     return LoadResult(
         requests=n, seconds=round(secs, 3), rps=round(n / secs, 1) if secs else 0.0,
-        errors=sum(raw["errors"].values()), p50_ms=lat["p50"] / 1000, p90_ms=lat["p90"] / 1000,
+        errors=sum(raw["errors"].values()), error_kinds={k: v for k, v in raw["errors"].items() if v},
+        p50_ms=lat["p50"] / 1000, p90_ms=lat["p90"] / 1000,
         p99_ms=lat["p99"] / 1000, mean_ms=round(lat["mean"] / 1000, 3),
         bytes_per_request=round(raw["bytes"] / n) if n else 0,
     )

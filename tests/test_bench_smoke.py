@@ -41,7 +41,8 @@ def test_quick_bench_runs_every_case_and_writes_json(tmp_path):
         assert row["measured"] and row["values"], row
     assert rows["warm8"]["values"]["rps"] > 0
     assert rows["floor1"]["values"]["p50_ms"] > 0
-    assert rows["cold"]["values"]["misses"] == 0
+    cold = rows["cold"]["values"]
+    assert len(cold["samples_ms"]) + cold["misses"] == 3  # every fresh topic was read once
     assert rows["idle"]["values"]["pooled"] >= 50
     assert rows["memory"]["values"]["pooled"] > 0
     # The table is printed, one line per case.
