@@ -159,8 +159,10 @@ def raw_exchange(port: int, data: bytes, timeout: float = 10.0) -> tuple[int | N
         try:
             s.sendall(data)
             s.shutdown(socket.SHUT_WR)
-        except (BrokenPipeError, ConnectionResetError):
-            pass  # the server answered (e.g. 413) and closed before reading everything
+        except (BrokenPipeError, ConnectionResetError, OSError):
+            # the server answered (e.g. 413) and closed before reading everything
+            # (ENOTCONN from shutdown when it closed first)
+            pass
         chunks = []
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
