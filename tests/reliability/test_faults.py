@@ -90,6 +90,12 @@ def start(gateways, nodes, *flags: str):
     for t in LIVE:
         poll_until(lambda t=t: gw.get(f"/components/{host}/data{t}").json()["x-medkit"]["status"] == "data",
                    30, interval=0.1, message=f"data on {t}")
+    # Node names are discovered after the node's topics (a slow machine shows the gap): the
+    # checks are about faults, so wait until the app is known, and until the worker has noted
+    # it in the state its successor reads after a crash.
+    poll_until(lambda: gw.get("/apps/fault_pubs").status_code == 200, 30, message="app visible")
+    state = os.path.join(gw.runtime_dir, "pool.json")
+    poll_until(lambda: "/fault_pubs" in open(state).read(), 10, message="node in the restart state")
     return gw, host
 
 
@@ -309,11 +315,6 @@ def test_killed_publisher_is_served_until_its_lease_expires_then_metadata_only(g
 
 def test_running_app_is_not_reported_gone_after_a_rosworker_restart(gateways, nodes):
     gw, host = start(gateways, nodes)
-    # Node names are discovered after the node's topics: wait until the app is known, and
-    # until the worker has noted it in the state its successor reads after a crash.
-    poll_until(lambda: gw.get("/apps/fault_pubs").status_code == 200, 30, message="app visible")
-    state = os.path.join(gw.runtime_dir, "pool.json")
-    poll_until(lambda: "/fault_pubs" in open(state).read(), 10, message="node in the restart state")
     os.kill(worker_pid(gw), signal.SIGKILL)
     client = Client(gw.port, timeout=10)
     seen: list[str] = []
