@@ -122,6 +122,7 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("api_token", str, "", "bearer token required for PUT (empty: none)"),
     Setting("max_body_bytes", int, 1048576, "largest accepted request body in bytes", 1024, 67108864),
     Setting("ipc_timeout", float, 2.0, "seconds an HTTP worker waits for a non-sample ROS-worker reply", 0.1, 60),
+    Setting("header_timeout", float, 15.0, "seconds a client may take to send a request's head", 1, 300),
     Setting("forwarded_allow_ips", str, "127.0.0.1,::1", "proxies trusted for X-Forwarded-* headers"),
     # --- service ---
     Setting("runtime_dir", str, "", "directory for the IPC socket and lock (default: see README)"),

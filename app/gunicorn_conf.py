@@ -7,8 +7,10 @@ The supervisor starts gunicorn as::
 with every setting in the environment (``Config.to_env()``), so this module
 holds no defaults of its own: it maps the gateway's settings onto gunicorn's.
 
-- ``gthread`` workers: a request that waits on a cold topic holds one thread,
-  not a whole process; ``workers`` × ``threads`` requests run at once.
+- ``gthread`` workers (``app/gunicorn_worker.py``: request heads are read on
+  the worker's event loop, so idle or stalled clients hold no thread): a
+  request that waits on a cold topic holds one thread, not a whole process;
+  ``workers`` × ``threads`` requests run at once.
 - No ``preload_app``: the Flask app (and its ZeroMQ client) is made in each
   worker after the fork, never in the master.
 - ``graceful_timeout`` is ``shutdown_grace``: on SIGTERM in-flight requests
@@ -31,7 +33,7 @@ _cfg = _config.load(None)
 
 bind = [_cfg.bind]
 workers = _cfg.workers
-worker_class = "gthread"
+worker_class = "app.gunicorn_worker.HeadBufferingWorker"
 threads = _cfg.threads
 graceful_timeout = max(1, math.ceil(_cfg.shutdown_grace))  # gunicorn wants whole seconds
 timeout = int(max(30.0, 2 * _cfg.sample_timeout + 2 * _cfg.ipc_timeout + 10))

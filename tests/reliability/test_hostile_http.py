@@ -479,11 +479,8 @@ def health_answers(port: int, attempts: int = 3, timeout: float = 3.0) -> list[i
     return out
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG/limitation: gunicorn's gthread worker reads request headers with a blocking socket and no "
-    "timeout, so workers x threads clients that send a partial request and stall hold every thread; "
-    "direct clients then hang. nginx in front (the documented deployment) prevents it (next test)."))
 def test_slow_clients_do_not_starve_the_http_workers(gateways):
+    """Clients that send half a head and stall hold no thread (app/gunicorn_worker.py)."""
     gw = gateways("--workers", "1", "--threads", "2", "--log-level", "warning")
     socks = slow_clients(gw.port, 4)
     try:
@@ -498,12 +495,8 @@ def test_slow_clients_do_not_starve_the_http_workers(gateways):
     assert answers == [200] * len(answers), answers
 
 
-@pytest.mark.xfail(strict=False, reason=(  # usually fails; under heavy machine load it sometimes passes
-    "BUG/limitation: gunicorn's gthread worker gives every new connection a thread for up to 5 s "
-    "(DEFAULT_WORKER_DATA_TIMEOUT) before parking it, so connections that send nothing (a port "
-    "scan, browser preconnects) starve workers x threads for connections/threads x 5 s. nginx in "
-    "front prevents it (next test)."))
 def test_idle_connections_do_not_starve_the_http_workers(gateways):
+    """Connections that send nothing (port scans, browser preconnects) hold no thread."""
     gw = gateways("--log-level", "warning")  # the default 2 workers x 8 threads
     idle = [socket.create_connection(("127.0.0.1", gw.port), timeout=5) for _ in range(200)]
     try:
