@@ -36,7 +36,8 @@ class Gateway(Proc):
             poll_until(self._healthy, timeout, interval=0.1, message="gateway health")
         except AssertionError:
             self.stop()
-            raise AssertionError("gateway did not become healthy; output:\n" + "\n".join(self.output[-60:]))
+            raise AssertionError("gateway did not become healthy; output:\n"
+                                 + "\n".join(self.output[-60:])) from None
 
     def _healthy(self) -> bool:
         if self.proc.poll() is not None:

@@ -106,8 +106,9 @@ def main() -> None:
     for item in spec.get("subscribe", []):
         cls = _load(item["type"])
         topic = node.resolve_topic_name(item["topic"])
+        echo = bool(item.get("echo", False))
 
-        def on_msg(msg, topic=topic, echo=item.get("echo", False)):
+        def on_msg(msg, topic=topic, echo=echo):
             if echo:
                 print(json.dumps({"topic": topic, "data": _plain(msg)}), flush=True)
 
