@@ -14,6 +14,7 @@ difference between figures of the same run.
 |---|---|
 | floor | ``GET /api/v1/version-info`` (touches no ROS worker), 8 and 1 connections |
 | warm sample | ``GET .../data/powertrain/engine/temperature`` (10 Hz, pooled), 8 and 1 connections |
+| IPC hop | ``GET /api/v1/health`` (one ``stats`` round trip, no ROS work), 1 connection: report only |
 | old design | ``bench/oldsampler.py``: create a subscription, wait for a message, destroy it |
 | cold sample | the first HTTP read of a fresh 10 Hz topic, one topic per read |
 | image | 640×480 rgb8 at 10 Hz, 1 connection, integer arrays, then ``?bytes=base64`` |
@@ -21,7 +22,7 @@ difference between figures of the same run.
 | memory | ROS worker RSS before and with 256 pooled topics |
 
 Floor and warm sample are measured in alternating rounds (floor -c8,
-sample -c8, floor -c1, sample -c1, six times); each target is the median over
+sample -c8, floor -c1, sample -c1, health -c1, six times); each target is the median over
 the rounds of the paired ratio or difference, so that a slow moment of the
 machine does not land on one side only.  The gateway's CPU per request is
 recorded beside (load-independent).
@@ -242,19 +243,23 @@ class Bench:
         if p["warmup_s"]:
             self._load(floor_url, 8, p["warmup_s"])
             self._load(warm_url, 8, p["warmup_s"])
-        runs: dict[str, list[loadgen.LoadResult]] = {"floor8": [], "warm8": [], "floor1": [], "warm1": []}
-        ratios, extras = [], []
+        health_url = self.gw.api + "/health"
+        runs: dict[str, list[loadgen.LoadResult]] = {"floor8": [], "warm8": [], "floor1": [], "warm1": [],
+                                                     "hop1": []}
+        ratios, extras, hops = [], [], []
         for i in range(p["rounds"]):
             for key, url, conns in (("floor8", floor_url, 8), ("warm8", warm_url, 8),
-                                    ("floor1", floor_url, 1), ("warm1", warm_url, 1)):
+                                    ("floor1", floor_url, 1), ("warm1", warm_url, 1),
+                                    ("hop1", health_url, 1)):
                 runs[key].append(self._paired_load(url, conns, p["load_s"]))
-            f8, w8, f1, w1 = (runs[k][-1] for k in ("floor8", "warm8", "floor1", "warm1"))
+            f8, w8, f1, w1, h1 = (runs[k][-1] for k in ("floor8", "warm8", "floor1", "warm1", "hop1"))
             ratios.append(w8["rps"] / f8["rps"] if f8["rps"] else 0.0)
             extras.append(w1["p50_ms"] - f1["p50_ms"])
+            hops.append(h1["p50_ms"] - f1["p50_ms"])
             log(f"round {i + 1}/{p['rounds']}: -c8 floor {f8['rps']:.0f} warm {w8['rps']:.0f} req/s "
                 f"(= {ratios[-1]:.2f}); -c1 p50 floor {f1['p50_ms']:.3f} warm {w1['p50_ms']:.3f} ms "
-                f"(+{extras[-1]:.3f}); gateway CPU/request floor {f8['gateway_cpu_us_per_request']} "
-                f"warm {w8['gateway_cpu_us_per_request']} us")
+                f"(+{extras[-1]:.3f}) health {h1['p50_ms']:.3f} ms (+{hops[-1]:.3f}); gateway CPU/request "
+                f"floor {f8['gateway_cpu_us_per_request']} warm {w8['gateway_cpu_us_per_request']} us")
         if self.args.profile:
             self.profile(warm_url)
 
@@ -289,6 +294,14 @@ class Bench:
                  f"p50 {m['warm1']['p50_ms']:.3f} ms; paired median floor + {extra:.3f} ms",
                  f"≤ floor p50 + {TARGETS['warm_p50_extra_ms']} ms",
                  extra <= TARGETS["warm_p50_extra_ms"] and m["warm1"]["errors"] == 0)
+        hop = statistics.median(hops)
+        self.add("hop1", "IPC hop alone (/health), 1 connection",
+                 f"{gen} -c1 GET /api/v1/health: one round trip to the ROS worker, answered by whichever "
+                 "thread holds its socket, no ROS work; paired with the floor",
+                 {**m["hop1"], "extra_over_floor_ms": round(hop, 3), "paired_extras_ms": [round(x, 3) for x in hops],
+                  "warm_minus_hop_ms": round(extra - hop, 3)},
+                 f"p50 {m['hop1']['p50_ms']:.3f} ms; paired median floor + {hop:.3f} ms; the warm sample "
+                 f"costs {extra - hop:+.3f} ms beyond this hop")
         errors = sum(x["errors"] for x in m.values())
         if errors:
             log(f"WARNING: {errors} HTTP errors during floor/warm runs: "
@@ -478,7 +491,7 @@ def ros_helper_demo() -> Proc:
 
 # ---------------------------------------------------------------------------- output
 
-ORDER = ("floor8", "floor1", "warm8", "warm1", "old", "cold", "image", "image_b64", "idle", "memory")
+ORDER = ("floor8", "floor1", "warm8", "warm1", "hop1", "old", "cold", "image", "image_b64", "idle", "memory")
 
 
 def ordered(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
