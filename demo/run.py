@@ -1,4 +1,10 @@
-"""``make run``: the demo robot and the gateway in the foreground; Ctrl-C stops both."""
+"""``make run``: the demo robot and the gateway in the foreground; Ctrl-C stops both.
+
+Both run in process groups of their own (as the gateway's own children do), so
+Ctrl-C in the terminal reaches only this launcher, which then stops each of them
+once, in order; a second signal would make the gateway skip its ordered stop.
+They die with the launcher if it is killed outright.
+"""
 
 from __future__ import annotations
 
@@ -9,6 +15,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from app.children import Child
+
 BIN = Path(sys.executable).parent
 
 
@@ -17,10 +25,12 @@ def main() -> int:
     parser.add_argument("--bind", default="127.0.0.1:8080")
     args, gateway_args = parser.parse_known_args()
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    robot = subprocess.Popen([sys.executable, "-m", "demo.robot"], env=env)
+    robot = Child("demo robot", [sys.executable, "-m", "demo.robot"], env, signal.SIGTERM)
     # Publishing is off by default; the demo turns it on so that the README's PUT example works.
-    gateway = subprocess.Popen([str(BIN / "sovd-gateway"), "--bind", args.bind, "--allow-publish",
-                                *gateway_args], env=env)
+    gateway = Child("sovd-gateway", [str(BIN / "sovd-gateway"), "--bind", args.bind, "--allow-publish",
+                                     *gateway_args], env, signal.SIGTERM)
+    robot.start()
+    gateway.start()
     host, _, port = args.bind.rpartition(":")
     print(f"\nsovd-gateway demo: try  curl http://{host}:{port}/api/v1/health\n"
           "Ctrl-C stops the gateway and the demo robot.\n", flush=True)
@@ -30,23 +40,22 @@ def main() -> int:
     signal.signal(signal.SIGTERM, lambda *_: stopping.append(1))
     code = 0
     try:
-        while not stopping and gateway.poll() is None and robot.poll() is None:
+        while not stopping and gateway.alive() and robot.alive():
             try:
-                gateway.wait(timeout=0.5)
+                gateway.proc.wait(timeout=0.5)
             except subprocess.TimeoutExpired:
                 pass
-        if gateway.poll() is not None:
+        if not gateway.alive():
             code = gateway.returncode
     finally:
-        for proc in (gateway, robot):
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-        for proc in (gateway, robot):
+        for child in (gateway, robot):
+            child.send(signal.SIGTERM)
+        for child in (gateway, robot):
             try:
-                proc.wait(timeout=12)
+                child.proc.wait(timeout=12)
             except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(timeout=5)
+                child.kill_group()
+                child.proc.wait(timeout=5)
     return code
 
 
