@@ -68,16 +68,17 @@ class HeadBufferingWorker(gthread.ThreadWorker):
     def on_client_socket_readable(self, conn, client):
         if not self._buffering:
             return super().on_client_socket_readable(conn, client)
-        self.poller.unregister(client)
-        self.keepalived_conns.remove(conn)
-        self._read_head(conn)
+        self._resume(conn, client, self.keepalived_conns)
 
     def on_pending_socket_readable(self, conn, client):
         # Parked by handle() below: the rest of a pipelined head is still to come.
         if not self._buffering:
             return super().on_pending_socket_readable(conn, client)
+        self._resume(conn, client, self.pending_conns)
+
+    def _resume(self, conn, client, waiting: deque) -> None:
         self.poller.unregister(client)
-        self.pending_conns.remove(conn)
+        waiting.remove(conn)
         self._read_head(conn)
 
     def _read_head(self, conn) -> None:
