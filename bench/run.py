@@ -246,6 +246,7 @@ class Bench:
         health_url = self.gw.api + "/health"
         runs: dict[str, list[loadgen.LoadResult]] = {"floor8": [], "warm8": [], "floor1": [], "warm1": [],
                                                      "hop1": []}
+        inside_before = self.call("stats")["details"]["commands"].get("sample", {"count": 0, "time_us": 0})
         ratios, extras, hops = [], [], []
         for i in range(p["rounds"]):
             for key, url, conns in (("floor8", floor_url, 8), ("warm8", warm_url, 8),
@@ -294,6 +295,14 @@ class Bench:
                  f"p50 {m['warm1']['p50_ms']:.3f} ms; paired median floor + {extra:.3f} ms",
                  f"≤ floor p50 + {TARGETS['warm_p50_extra_ms']} ms",
                  extra <= TARGETS["warm_p50_extra_ms"] and m["warm1"]["errors"] == 0)
+        inside = self.call("stats")["details"]["commands"]["sample"]
+        n_inside = inside["count"] - inside_before["count"]
+        us_inside = (inside["time_us"] - inside_before["time_us"]) / n_inside if n_inside else 0.0
+        self.add("inside", "warm sample inside the ROS worker",
+                 "the worker's own time per queued sample command on its ROS thread (take + cached JSON "
+                 "+ reply), over every warm sample of the rounds",
+                 {"us_per_sample": round(us_inside, 1), "samples": n_inside},
+                 f"{us_inside:.0f} us per sample over {n_inside} samples")
         hop = statistics.median(hops)
         self.add("hop1", "IPC hop alone (/health), 1 connection",
                  f"{gen} -c1 GET /api/v1/health: one round trip to the ROS worker, answered by whichever "
@@ -491,7 +500,7 @@ def ros_helper_demo() -> Proc:
 
 # ---------------------------------------------------------------------------- output
 
-ORDER = ("floor8", "floor1", "warm8", "warm1", "hop1", "old", "cold", "image", "image_b64", "idle", "memory")
+ORDER = ("floor8", "floor1", "warm8", "warm1", "hop1", "inside", "old", "cold", "image", "image_b64", "idle", "memory")
 
 
 def ordered(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:

@@ -276,7 +276,8 @@ class RosExecutor:
             task.fail(IpcError("internal", f"Internal error in the ROS worker while handling {task.cmd!r}; "
                                            "see its log"))
         finally:
-            self.stats.task_finished(started, ok)
+            # Only names of the protocol are queued (ipc/server.py), so the table stays small.
+            self.stats.task_finished(started, ok, task.cmd)
 
     def drain(self) -> None:
         while True:

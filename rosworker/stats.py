@@ -45,6 +45,8 @@ class Stats:
     publishers: int = 0
     publishes_total: int = 0
     ipc_dropped_frames: int = 0
+    # queued commands: name -> [count, total µs on the ROS thread] (the names are a fixed set)
+    commands: dict = field(default_factory=dict)
     current_task_started: float = 0.0  # monotonic; 0 while idle
 
     def task_started(self) -> float:
@@ -52,9 +54,15 @@ class Stats:
         self.current_task_started = now
         return now
 
-    def task_finished(self, started: float, ok: bool) -> None:
+    def task_finished(self, started: float, ok: bool, command: str | None = None) -> None:
         latency_us = int((time.monotonic() - started) * 1e6)
         self.current_task_started = 0.0
+        if command is not None:
+            totals = self.commands.get(command)
+            if totals is None:
+                totals = self.commands[command] = [0, 0]
+            totals[0] += 1
+            totals[1] += latency_us
         self.last_task_latency_us = latency_us
         if latency_us > self.max_task_latency_us:
             self.max_task_latency_us = latency_us
@@ -108,5 +116,6 @@ class Stats:
                 "publishers": self.publishers,
                 "publishes_total": self.publishes_total,
                 "ipc_dropped_frames": self.ipc_dropped_frames,
+                "commands": {name: {"count": n, "time_us": t} for name, (n, t) in self.commands.items()},
             },
         }

@@ -41,6 +41,13 @@ def test_first_read_subscribes_and_later_reads_come_from_the_pool(nodes):
         assert worker.stats()["data_provider"]["pool_hits"] == hits_before + 1
         assert worker.stats()["data_provider"]["pool_size"] == 1
         assert worker.call("pool")["topics"] == [topic]
+        # Each queued command's count and time on the ROS thread (a warm sample's cost inside).
+        before = worker.stats()["details"]["commands"]["sample"]
+        for _ in range(10):
+            assert worker.sample(topic)["status"] == "data"
+        after = worker.stats()["details"]["commands"]["sample"]
+        assert after["count"] == before["count"] + 10
+        assert after["time_us"] > before["time_us"]
     finally:
         worker.stop()
 
