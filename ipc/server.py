@@ -47,6 +47,7 @@ WATCHDOG_CHECK = 0.05
 WATCH_TICK = 0.02          # seconds between looks at the ROS thread while it is the front
 TAKEOVER_AFTER_MS = 20     # a task running this long hands the socket to this thread
 HANDOVER_WAIT = 1.0        # seconds to wait for the lock the ROS thread gave away
+CLOSE_GRACE = 0.25         # seconds the socket stays open after the last replies (see _linger)
 
 
 class LockHeld(RuntimeError):
@@ -119,8 +120,10 @@ class IpcServer:
         router = self.zctx.socket(zmq.ROUTER)
         router.setsockopt(zmq.LINGER, 500)
         router.setsockopt(zmq.MAXMSGSIZE, protocol.MAX_FRAME)
-        router.setsockopt(zmq.RCVHWM, 10000)
-        router.setsockopt(zmq.SNDHWM, 10000)
+        # Per peer: a client has one request in flight per thread, so 1000 is far above
+        # need, and it bounds what a hostile peer makes the worker buffer.
+        router.setsockopt(zmq.RCVHWM, 1000)
+        router.setsockopt(zmq.SNDHWM, 1000)
         path = os.path.join(self.runtime_dir, protocol.SOCKET_NAME)
         if os.path.exists(path):
             os.unlink(path)  # stale: we hold the lock, so nobody else serves it
@@ -169,6 +172,7 @@ class IpcServer:
                     if self._front or lock.acquire(timeout=HANDOVER_WAIT):
                         self._front = True
                         self._from_ros(pair, router)
+                        self._linger(router, pair)
                     break
         finally:
             if self._front:
@@ -180,6 +184,25 @@ class IpcServer:
                 os.unlink(path)
             except OSError:
                 pass
+
+    def _linger(self, router: zmq.Socket, pair: zmq.Socket) -> None:
+        """Keep the socket open for ``CLOSE_GRACE`` after the last replies (answering "shutdown").
+
+        Clients connect with ``ZMQ_IMMEDIATE`` (a request sent while the worker is down must
+        fail, not wait for its successor), and libzmq then drops what a client has received
+        but not yet read when the connection goes: without this pause, the answers to woken
+        waiters and drained commands could be lost at the very end.
+        """
+        until = time.monotonic() + CLOSE_GRACE
+        poller = zmq.Poller()
+        poller.register(router, zmq.POLLIN)
+        poller.register(pair, zmq.POLLIN)
+        while (left := until - time.monotonic()) > 0:
+            events = dict(poller.poll(max(1, int(left * 1000))))
+            if pair in events:
+                self._from_ros(pair, router)
+            if router in events:
+                self._receive(router)
 
     def _from_ros(self, pair: zmq.Socket, router: zmq.Socket) -> None:
         """Handle what the ROS thread sent, in order: replies to forward, ``take``, ``back``."""

@@ -142,6 +142,37 @@ def test_shutdown_wakes_waiters_drains_and_exits_zero(nodes):
     assert answers[0]["reason"] == "shutdown"
 
 
+def test_every_waiter_hears_the_shutdown_answer_before_the_socket_closes(nodes):
+    """Clients use ZMQ_IMMEDIATE, so an answer not yet read when the connection drops is lost:
+    the worker keeps its socket open a moment after its last replies (ipc/server.py)."""
+    topics = [unique(f"never{i}") for i in range(4)]
+    nodes.append(silent(topics))
+    worker = RosWorker()
+    poll_until(lambda: {t["name"] for t in worker.call("graph")["topics"]} >= set(topics), 10,
+               message="silent publishers discovered")
+    answers: list = []
+    errors: list = []
+
+    def wait(topic):
+        try:
+            answers.append(worker.sample(topic, timeout_ms=20000))
+        except IpcError as exc:
+            errors.append(exc)
+
+    waiters = [threading.Thread(target=wait, args=(t,)) for t in topics]
+    for w in waiters:
+        w.start()
+    poll_until(lambda: worker.stats()["data_provider"]["concurrent_cold_waits"] == len(topics), 5,
+               message="cold waiters")
+    worker.signal(15)
+    assert worker.proc.wait(10) == 0
+    for w in waiters:
+        w.join(10)
+    worker.stop()
+    assert not errors, errors
+    assert [a["reason"] for a in answers] == ["shutdown"] * len(topics)
+
+
 def test_second_worker_on_the_same_runtime_dir_refuses_to_start():
     worker = RosWorker()
     try:
