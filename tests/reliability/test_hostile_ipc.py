@@ -30,41 +30,49 @@ MAX_QUEUE = 64
 BURSTS = scaled(3, 10)
 
 
-def garbage(rng: random.Random, i: int) -> tuple[list[bytes], bool]:
-    """One hostile message and whether the worker should drop it (True) or answer an error."""
+# What becomes of each kind of hostile message: dropped unread, answered with an error by the
+# IPC front, or queued for the ROS thread (which answers an error, or backpressure when full).
+DROP, ANSWER, QUEUE = "drop", "answer", "queue"
+
+
+def garbage(rng: random.Random, i: int) -> tuple[list[bytes], str]:
+    """One hostile message and what the worker should do with it."""
     kind = i % 12
     if kind == 0:
-        return [rng.randbytes(rng.randrange(1, 512))], True
+        return [rng.randbytes(rng.randrange(1, 512))], DROP
     if kind == 1:
-        return [b"\x91" * 5000 + b"\x01"], True                    # nested deeper than msgpack allows
+        return [b"\x91" * 5000 + b"\x01"], DROP                    # nested deeper than msgpack allows
     if kind == 2:
-        return [b"\xdf\xff\xff\xff\xff"], True                     # a map claiming 4G entries
+        return [b"\xdf\xff\xff\xff\xff"], DROP                     # a map claiming 4G entries
     if kind == 3:
-        return [b"\xdb\xff\xff\xff\xff" + b"x" * 16], True         # a string claiming 4 GB
+        return [b"\xdb\xff\xff\xff\xff" + b"x" * 16], DROP         # a string claiming 4 GB
     if kind == 4:
-        return [msgpack.packb(list(range(50)))], True              # not a map
+        return [msgpack.packb(list(range(50)))], DROP              # not a map
     if kind == 5:
-        return [msgpack.packb({"v": 1, "cmd": "ping", "id": 1.5})], True  # id not an int
+        return [msgpack.packb({"v": 1, "cmd": "ping", "id": 1.5})], DROP  # id not an int
     if kind == 6:
-        return [msgpack.packb({"v": 1, "id": i, "cmd": "ping"}), b"extra"], True
+        return [msgpack.packb({"v": 1, "id": i, "cmd": "ping"}), b"extra"], DROP
     if kind == 7:
-        return [msgpack.packb({"v": 1, "id": i, "cmd": "x" * 5000, "args": {}})], False
+        return [msgpack.packb({"v": 1, "id": i, "cmd": "x" * 5000, "args": {}})], ANSWER
     if kind == 8:
         return [msgpack.packb({"v": 1, "id": i, "cmd": "sample", "args": {"topic": "/a\x00/../b" * 50},
-                               "deadline_ms": 1000})], False
+                               "deadline_ms": 1000})], QUEUE
     if kind == 9:
         return [msgpack.packb({"v": 1, "id": i, "cmd": "publish", "deadline_ms": 1000,
-                               "args": {"topic": "/x", "type": "os/msg/system", "data": {"a": [1] * 1000}}})], False
+                               "args": {"topic": "/x", "type": "os/msg/system", "data": {"a": [1] * 1000}}})], QUEUE
     if kind == 10:
         return [msgpack.packb({"v": 1, "id": i, "cmd": "graph", "args": {"since": "x" * 100},
-                               "deadline_ms": 10**12})], False
+                               "deadline_ms": 10**12})], ANSWER
     return [msgpack.packb({"v": 1, "id": i, "cmd": "type_info", "args": {"type": ["list"]},
-                           "deadline_ms": 1000})], False
+                           "deadline_ms": 1000})], QUEUE
 
 
-def burst(ctx: zmq.Context, endpoint: str, rng: random.Random) -> tuple[int, list[zmq.Socket]]:
-    """One burst of every kind of hostile input: (frames that should be dropped, sockets to close)."""
-    expect_dropped = 0
+def burst(ctx: zmq.Context, endpoint: str, rng: random.Random) -> tuple[int, int, list[zmq.Socket]]:
+    """One burst of every kind of hostile input.
+
+    Returns (frames that should be dropped, commands that should reach the queue, sockets to close).
+    """
+    expect_dropped = expect_queued = 0
     # 1. Garbage from a handful of peers that never read what comes back.
     socks = []
     for _ in range(4):
@@ -75,8 +83,9 @@ def burst(ctx: zmq.Context, endpoint: str, rng: random.Random) -> tuple[int, lis
         s.connect(endpoint)
         socks.append(s)
     for i in range(GARBAGE):
-        frames, drop = garbage(rng, i)
-        expect_dropped += drop
+        frames, fate = garbage(rng, i)
+        expect_dropped += fate == DROP
+        expect_queued += fate == QUEUE
         socks[i % len(socks)].send_multipart(frames)
     # 2. Oversized frames: zmq drops the connection of a peer that sends one.
     for _ in range(3):
@@ -88,10 +97,11 @@ def burst(ctx: zmq.Context, endpoint: str, rng: random.Random) -> tuple[int, lis
     # 3. Peers that send one request and vanish without reading the reply.
     for i in range(PEERS):
         s = ctx.socket(zmq.DEALER)
-        s.setsockopt(zmq.LINGER, 100)
+        s.setsockopt(zmq.LINGER, 5000)  # close() returns at once; the frame is still delivered
         s.connect(endpoint)
         s.send(protocol.pack({"v": 1, "id": i, "cmd": "pool", "args": {}, "deadline_ms": 1000}))
         s.close()
+    expect_queued += PEERS
     # 4. A flood of queued commands nobody reads: the bounded queue answers backpressure.
     flood = ctx.socket(zmq.DEALER)
     flood.setsockopt(zmq.LINGER, 0)
@@ -102,7 +112,13 @@ def burst(ctx: zmq.Context, endpoint: str, rng: random.Random) -> tuple[int, lis
         flood.send(protocol.pack({"v": 1, "id": i, "cmd": "sample", "deadline_ms": 5000,
                                   "args": {"topic": f"/hostile_ipc/t{i % 500}", "timeout_ms": 0}}))
     socks.append(flood)
-    return expect_dropped, socks
+    return expect_dropped, expect_queued + FLOOD, socks
+
+
+def queue_outcomes(stats: dict) -> int:
+    """Commands that left the queue (run, whatever their answer) or never got in (backpressure)."""
+    ran = sum(c["count"] for c in stats["details"]["commands"].values())
+    return ran + stats["executor"]["queue_dropped"]
 
 
 def test_bursts_of_hostile_frames_leave_the_worker_serving_and_bounded():
@@ -118,8 +134,10 @@ def test_bursts_of_hostile_frames_leave_the_worker_serving_and_bounded():
         rss_after_burst, pings = [], []
         sent = 0
         for _ in range(BURSTS):
-            dropped_before = worker.stats()["details"]["ipc_dropped_frames"]
-            expect_dropped, socks = burst(ctx, endpoint, rng)
+            stats_before = worker.stats()
+            dropped_before = stats_before["details"]["ipc_dropped_frames"]
+            outcomes_before = queue_outcomes(stats_before)
+            expect_dropped, expect_queued, socks = burst(ctx, endpoint, rng)
             sent += GARBAGE + PEERS + FLOOD + 3
             # The same worker answers at once, and its queue drains.
             asked = time.monotonic()
@@ -129,6 +147,10 @@ def test_bursts_of_hostile_frames_leave_the_worker_serving_and_bounded():
             target = dropped_before + expect_dropped
             poll_until(lambda t=target: worker.stats()["details"]["ipc_dropped_frames"] >= t, 60,
                        interval=0.1, message=f"{expect_dropped} garbage frames dropped")
+            # ... and so is the flood: the queue may run empty between two of its batches.
+            target = outcomes_before + expect_queued
+            poll_until(lambda t=target: queue_outcomes(worker.stats()) >= t, 60, interval=0.1,
+                       message=f"{expect_queued} queued commands run or refused")
             poll_until(lambda: worker.stats()["executor"]["queue_depth"] == 0, 60, message="queue drained")
             assert worker.sample("/hostile_ipc/nobody")["status"] == "metadata_only"
             assert worker.call("type_info", {"type": "std_msgs/msg/String"})["type"] == "std_msgs/msg/String"
