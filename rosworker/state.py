@@ -30,7 +30,11 @@ class RestartState:
             return
         tmp = self.path + ".tmp"
         try:
-            with open(tmp, "w") as fh:
+            # Private like everything in the runtime dir, whatever the umask (the topic and
+            # node names of the robot are nobody else's business).
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+            os.fchmod(fd, 0o600)  # an older copy may have been made with other bits
+            with os.fdopen(fd, "w") as fh:
                 json.dump({"topics": topics, "nodes": nodes}, fh)
             os.replace(tmp, self.path)
             self._saved = current

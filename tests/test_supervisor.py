@@ -492,10 +492,12 @@ def test_pool_list_survives_in_the_runtime_dir_only(temperature_pub):
     try:
         comp = host_id(gw)
         wait_for_data(gw, comp)
+        poll_until(lambda: os.path.exists(os.path.join(gw.runtime_dir, "pool.json")), 10,
+                   message="pool list saved")
         names = set(os.listdir(gw.runtime_dir))
-        assert {"rosworker.sock", "rosworker.lock", "supervisor.lock"} <= names
-        for name in ("rosworker.sock", "supervisor.lock"):
-            assert os.stat(os.path.join(gw.runtime_dir, name)).st_mode & 0o077 == 0
+        assert {"rosworker.sock", "rosworker.lock", "supervisor.lock", "pool.json"} <= names
+        for name in names:
+            assert os.stat(os.path.join(gw.runtime_dir, name)).st_mode & 0o077 == 0, name
         with open(os.path.join(gw.runtime_dir, "supervisor.lock")) as fh:
             assert fh.read().strip() == str(gw.pid)
     finally:
