@@ -21,8 +21,9 @@ call, keep-alive, graceful shutdown) is gunicorn's.
 With TLS or HTTP/2 cleartext configured (the gateway uses neither) the stock
 behaviour is kept.  The worker uses gthread internals (``TConn``, the
 selector, ``enqueue_req``, ``pending_conns``), so ``pyproject.toml`` pins
-gunicorn's major version; ``tests/reliability/test_hostile_http.py`` checks
-the behaviour through a real gunicorn.
+gunicorn's major version; ``tests/test_gunicorn_worker.py`` and
+``tests/reliability/test_hostile_http.py`` check the behaviour through a real
+gunicorn.
 """
 
 from __future__ import annotations
@@ -117,14 +118,9 @@ class HeadBufferingWorker(gthread.ThreadWorker):
         self.enqueue_req(conn)
 
     def _drop_head(self, conn) -> None:
-        try:
-            self.poller.unregister(conn.sock)
-        except (KeyError, ValueError, OSError):
-            pass
-        try:
-            self.reading_heads.remove(conn)
-        except ValueError:
-            pass
+        """Close a connection whose head is still being read (it is registered and listed)."""
+        self.poller.unregister(conn.sock)
+        self.reading_heads.remove(conn)
         self.nr_conns -= 1
         conn.close()
 
@@ -152,7 +148,7 @@ class HeadBufferingWorker(gthread.ThreadWorker):
                 self.handle_error(None, conn.sock, conn.client, exc)
                 return False
             conn.parser.unreader.unread(prebuffered)
-        elif self._buffering and conn.initialized and not conn.is_http2:
+        elif self._buffering and conn.initialized:
             # A kept-alive connection whose next (pipelined) request is only partly here:
             # back to the event loop rather than a blocking read on this thread.
             if not _head_complete(conn.parser.unreader.buf.getvalue()):
