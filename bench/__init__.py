@@ -4,10 +4,14 @@
 and a real ``sovd-gateway`` in a private ROS domain, measures every case of
 the table, prints it and writes it as JSON under ``bench/results/``.
 
-Helpers, each its own process where the case needs one:
+Its ROS programs live beside the tests' own, in ``tests/support/`` (only
+``rosworker/`` of the gateway may create ROS entities), each run as its own process:
 
-- :mod:`bench.robot` — publishers: many topics per node, one timer per rate;
-- :mod:`bench.oldsampler` — the old subscribe-per-request design, in rclpy;
-- :mod:`bench.ddsfloor` — a bare rclpy process holding subscriptions without spinning;
+- :mod:`tests.support.benchpub` — publishers: many topics per node, one timer per rate;
+- :mod:`tests.support.oldsampler` — the old subscribe-per-request design, in rclpy;
+- :mod:`tests.support.ddsfloor` — a bare rclpy process holding subscriptions without spinning.
+
+Helpers of its own:
+
 - :mod:`bench.load` — ``wrk`` (or the Python fallback) and the 1-connection latency client.
 """

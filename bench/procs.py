@@ -6,7 +6,7 @@
 - :class:`BenchGateway` starts the real ``sovd-gateway`` console script; its
   output goes to a log file, not through a Python reader (a reader thread
   would take CPU from what is measured).
-- :func:`ros_helper` starts ``python -m bench.<module>`` and waits for ``READY``.
+- :func:`ros_helper` starts ``python -m tests.support.<module>`` and waits for ``READY``.
 """
 
 from __future__ import annotations
@@ -58,14 +58,18 @@ def claim_domain() -> int:
 
 
 def ros_helper(module: str, *args: str, name: str | None = None, timeout: float = 60.0) -> Proc:
-    """``python -m bench.<module> ARGS`` in its own process; returns once it printed READY."""
-    proc = Proc([sys.executable, "-m", f"bench.{module}", *args], name=name or module)
+    """``python -m tests.support.<module> ARGS`` in its own process; returns once it printed READY.
+
+    The bench's ROS nodes live beside the tests' own (only ``rosworker/`` of the
+    gateway may create ROS entities; tests/test_layout.py).
+    """
+    proc = Proc([sys.executable, "-m", f"tests.support.{module}", *args], name=name or module)
     proc.wait_line(lambda line: line == "READY", timeout)
     return proc
 
 
 def robot(node: str, groups: list[dict], timeout: float = 60.0) -> Proc:
-    return ros_helper("robot", json.dumps({"node": node, "groups": groups}), name=node, timeout=timeout)
+    return ros_helper("benchpub", json.dumps({"node": node, "groups": groups}), name=node, timeout=timeout)
 
 
 class BenchGateway:

@@ -5,7 +5,7 @@
 Starts, in a private ROS domain with localhost-only discovery: the demo
 robot (``demo/robot.py``), a real ``sovd-gateway`` (console script, default
 settings, log level ``warning`` so that gunicorn writes no access log line
-per request), and per case its own publishers (``bench/robot.py``).  Then
+per request), and per case its own publishers (``tests/support/benchpub.py``).  Then
 it measures every case below, prints the table and writes it as JSON to
 ``bench/results/bench-<UTC timestamp>.json``.  Every target is a ratio or a
 difference between figures of the same run.
@@ -15,10 +15,10 @@ difference between figures of the same run.
 | floor | ``GET /api/v1/version-info`` (touches no ROS worker), 8 and 1 connections |
 | warm sample | ``GET .../data/powertrain/engine/temperature`` (10 Hz, pooled), 8 and 1 connections |
 | IPC hop | ``GET /api/v1/health`` (one ``stats`` round trip, no ROS work), 1 connection: report only |
-| old design | ``bench/oldsampler.py``: create a subscription, wait for a message, destroy it |
+| old design | ``tests/support/oldsampler.py``: create a subscription, wait for a message, destroy it |
 | cold sample | the first HTTP read of a fresh 10 Hz topic, one topic per read |
 | image | 640×480 rgb8 at 10 Hz, 1 connection, integer arrays, then ``?bytes=base64`` |
-| idle cost | ROS worker CPU, 50 pooled topics at 100 Hz, no readers, next to ``bench/ddsfloor.py`` |
+| idle cost | ROS worker CPU, 50 pooled topics at 100 Hz, no readers, next to ``tests/support/ddsfloor.py`` |
 | memory | ROS worker RSS before and with 256 pooled topics |
 
 Floor and warm sample are measured in alternating rounds (floor -c8,
@@ -327,7 +327,7 @@ class Bench:
         warm = next(r for r in self.rows if r["key"] == "warm1")["values"]["p50_ms"]
         speedup = p50 / warm if warm else 0.0
         self.add("old", "old design (subscribe per request)",
-                 f"bench/oldsampler.py, rclpy: create sub, wait 1st msg, destroy; {n}× on {WARM_TOPIC}",
+                 f"tests/support/oldsampler.py, rclpy: create sub, wait 1st msg, destroy; {n}× on {WARM_TOPIC}",
                  {"p50_ms": round(p50, 3), "min_ms": min(samples, default=None),
                   "max_ms": max(samples, default=None), "timeouts": raw.get("timeouts"), "samples_ms": samples,
                   "speedup_of_warm_1conn": round(speedup, 1)},
@@ -429,7 +429,7 @@ class Bench:
                       ratio=round(ratio, 3))
         self.add("idle", "idle cost: ROS worker CPU, 50 pooled topics × 100 Hz, no readers"
                  if n == 50 and rate == 100 else f"idle cost: {n} pooled topics × {rate} Hz",
-                 f"psutil cpu_times over {p['idle_s']:g} s, same window as bench/ddsfloor.py "
+                 f"psutil cpu_times over {p['idle_s']:g} s, same window as tests/support/ddsfloor.py "
                  f"({n} subscriptions held, never spun)",
                  values, f"worker {values['rosworker']:.1f}% of a core vs DDS floor "
                  f"{values['ddsfloor']:.1f}% = {ratio:.2f} × floor",

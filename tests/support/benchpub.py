@@ -1,6 +1,6 @@
 """Publishers for the bench: many topics in one node, one timer per group.
 
-Run as ``python -m bench.robot '<json spec>'``::
+Run as ``python -m tests.support.benchpub '<json spec>'``::
 
     {"node": "bench_idle",
      "groups": [{"prefix": "/bench/idle/t", "count": 50, "rate": 100, "kind": "small"},
@@ -20,9 +20,9 @@ from __future__ import annotations
 
 import array
 import json
-import signal
 import sys
-import threading
+
+from tests.support import rosmain
 
 IMAGE_WIDTH, IMAGE_HEIGHT = 640, 480
 
@@ -35,17 +35,10 @@ def _topics(group: dict) -> list[str]:
 
 def main() -> None:
     spec = json.loads(sys.argv[1])
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Image, Temperature
 
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    rclpy.init(signal_handler_options=rclpy.SignalHandlerOptions.NO)
-    node = Node(spec["node"], start_parameter_services=False, enable_rosout=False)
+    node, stop = rosmain.start(spec["node"], start_parameter_services=False, enable_rosout=False)
     qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.VOLATILE)
     clock = node.get_clock()
@@ -71,15 +64,7 @@ def main() -> None:
         node.create_timer(1.0 / float(group["rate"]), tick)
 
     print("READY", flush=True)
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    try:
-        while not stop.is_set():
-            executor.spin_once(timeout_sec=0.05)
-    finally:
-        executor.remove_node(node)
-        node.destroy_node()
-        rclpy.try_shutdown()
+    rosmain.spin(node, stop)
 
 
 if __name__ == "__main__":

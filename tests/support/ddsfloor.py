@@ -1,6 +1,6 @@
 """The DDS floor of the idle-cost case: subscriptions that are held but never spun.
 
-Run as ``python -m bench.ddsfloor '<json list of topics>'``.  Waits until
+Run as ``python -m tests.support.ddsfloor '<json list of topics>'`` (by ``make bench``).  Waits until
 every topic has a publisher, subscribes to each with the pool's QoS rules
 (keep_last 1, matched reliability/durability), prints ``READY`` and then does
 nothing but sleep until SIGTERM.  Whatever CPU this process uses is the cost
@@ -11,24 +11,19 @@ least any process holding those subscriptions can cost.
 from __future__ import annotations
 
 import json
-import signal
 import sys
-import threading
 import time
+
+from tests.support import rosmain
 
 
 def main() -> int:
     topics = json.loads(sys.argv[1])
     import rclpy
-    from rclpy.node import Node
 
     from rosworker import convert, qos
 
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    rclpy.init(signal_handler_options=rclpy.SignalHandlerOptions.NO)
-    node = Node("bench_dds_floor", start_parameter_services=False, enable_rosout=False)
+    node, stop = rosmain.start("bench_dds_floor", start_parameter_services=False, enable_rosout=False)
     subs = []
     deadline = time.monotonic() + 60
     for topic in topics:

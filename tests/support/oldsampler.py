@@ -1,6 +1,6 @@
 """The old design, for comparison: subscribe per request.
 
-Run as ``python -m bench.oldsampler TOPIC COUNT [TIMEOUT_S]``.  Each of
+Run as ``python -m tests.support.oldsampler TOPIC COUNT [TIMEOUT_S]`` (by ``make bench``).  Each of
 COUNT samples creates a subscription (QoS matched to the publishers with the
 pool's own rules), spins until its first message arrives, destroys it, and
 records the time from "create" to "message in hand".  Requests start at a
@@ -20,18 +20,18 @@ import random
 import sys
 import time
 
+from tests.support import rosmain
+
 
 def main() -> int:
     topic, count = sys.argv[1], int(sys.argv[2])
     timeout = float(sys.argv[3]) if len(sys.argv) > 3 else 2.0
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
 
     from rosworker import convert, qos
 
-    rclpy.init(signal_handler_options=rclpy.SignalHandlerOptions.NO)
-    node = Node("bench_old_sampler", start_parameter_services=False, enable_rosout=False)
+    node, stop = rosmain.start("bench_old_sampler", start_parameter_services=False, enable_rosout=False)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     deadline = time.monotonic() + 30
@@ -51,6 +51,8 @@ def main() -> int:
     samples, timeouts = [], 0
     rng = random.Random(11)
     for _ in range(count):
+        if stop.is_set():  # SIGTERM: report what was measured so far
+            break
         # A random phase against the publisher's ticks, as requests from clients would have
         # (a loop that starts right after a message would always wait almost a whole period).
         time.sleep(rng.uniform(0, 0.1))

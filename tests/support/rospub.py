@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import importlib
 import json
-import signal
 import sys
-import threading
+
+from tests.support import rosmain
 
 
 def _load(type_name: str):
@@ -67,17 +67,9 @@ def _set_path(msg, path: str, value) -> None:
 
 def main() -> None:
     spec = json.loads(sys.argv[1])
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-
-    rclpy.init()
-    node = Node(spec["node"], namespace=spec.get("namespace", "/"))
+    node, stop = rosmain.start(spec["node"], namespace=spec.get("namespace", "/"))
     for item in spec.get("publish", []):
         cls = _load(item["type"])
         qos = QoSProfile(
@@ -115,15 +107,7 @@ def main() -> None:
         node.create_subscription(cls, item["topic"], on_msg, 10)
 
     print("READY", flush=True)
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    try:
-        while not stop.is_set():
-            executor.spin_once(timeout_sec=0.05)
-    finally:
-        executor.remove_node(node)
-        node.destroy_node()
-        rclpy.try_shutdown()
+    rosmain.spin(node, stop)
 
 
 if __name__ == "__main__":
