@@ -27,11 +27,7 @@ def main() -> int:
     subs = []
     deadline = time.monotonic() + 60
     for topic in topics:
-        infos = []
-        while not infos and time.monotonic() < deadline and not stop.is_set():
-            infos = node.get_publishers_info_by_topic(topic)
-            if not infos:
-                time.sleep(0.05)
+        infos = rosmain.wait_for_publishers(node, topic, deadline - time.monotonic(), stop)
         if not infos:
             print(f"no publisher on {topic}", flush=True)
             return 1

@@ -34,13 +34,7 @@ def main() -> int:
     node, stop = rosmain.start("bench_old_sampler", start_parameter_services=False, enable_rosout=False)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    deadline = time.monotonic() + 30
-    infos = []
-    while time.monotonic() < deadline:
-        infos = node.get_publishers_info_by_topic(topic)
-        if infos:
-            break
-        time.sleep(0.05)
+    infos = rosmain.wait_for_publishers(node, topic, 30, stop)
     if not infos:
         print(json.dumps({"error": f"no publisher on {topic}"}), flush=True)
         return 1

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import signal
 import threading
+import time
 
 
 def start(name: str, **node_options):
@@ -22,6 +23,17 @@ def start(name: str, **node_options):
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     rclpy.init(signal_handler_options=rclpy.SignalHandlerOptions.NO)
     return Node(name, **node_options), stop
+
+
+def wait_for_publishers(node, topic: str, timeout: float, stop: threading.Event) -> list:
+    """The topic's publisher infos once there is one; ``[]`` after ``timeout`` or a stop signal."""
+    deadline = time.monotonic() + timeout
+    while not stop.is_set():
+        infos = node.get_publishers_info_by_topic(topic)
+        if infos or time.monotonic() >= deadline:
+            return infos
+        time.sleep(0.05)
+    return []
 
 
 def spin(node, stop: threading.Event) -> None:
