@@ -58,8 +58,11 @@ class _Channel:
 
 
 class RosWorkerClient:
+    """``ping`` and ``stats`` go to the worker's control socket, every other command to its work socket."""
+
     def __init__(self, endpoint: str):
         self.endpoint = endpoint
+        self.control_endpoint = protocol.control_endpoint(endpoint)
         self._pid: int | None = None
         self._ctx: zmq.Context | None = None
         self._local = threading.local()
@@ -71,7 +74,7 @@ class RosWorkerClient:
     def for_runtime_dir(cls, runtime_dir: str) -> RosWorkerClient:
         return cls(protocol.endpoint(runtime_dir))
 
-    def _channel(self) -> _Channel:
+    def _channel(self, control: bool = False) -> _Channel:
         pid = os.getpid()
         if self._pid != pid:
             with self._lock:
@@ -81,19 +84,21 @@ class RosWorkerClient:
                     self._local = threading.local()
                     self._sockets = []
                     self._pid = pid
-        channel = getattr(self._local, "channel", None)
+        slot = "control" if control else "channel"
+        channel = getattr(self._local, slot, None)
         if channel is None:
-            channel = _Channel(self._ctx, self.endpoint)
-            self._local.channel = channel
+            channel = _Channel(self._ctx, self.control_endpoint if control else self.endpoint)
+            setattr(self._local, slot, channel)
             with self._lock:
                 self._sockets = [s for s in self._sockets if not s.closed] + [channel.sock, channel.mon]
         return channel
 
-    def _reset_channel(self) -> None:
-        channel = getattr(self._local, "channel", None)
+    def _reset_channel(self, control: bool = False) -> None:
+        slot = "control" if control else "channel"
+        channel = getattr(self._local, slot, None)
         if channel is not None:
             channel.close()
-            self._local.channel = None
+            setattr(self._local, slot, None)
 
     def call(self, cmd: str, args: dict[str, Any] | None = None, timeout: float = 2.0,
              connect_wait: float = CONNECT_WAIT) -> dict[str, Any]:
@@ -105,7 +110,8 @@ class RosWorkerClient:
         worker answered.
         """
         deadline = time.monotonic() + timeout
-        channel = self._channel()
+        control = cmd in protocol.IMMEDIATE
+        channel = self._channel(control)
         sock = channel.sock
         channel.forget_disconnects()
         rid = next(self._ids)
@@ -142,7 +148,7 @@ class RosWorkerClient:
             except zmq.Again:
                 continue
             except ValueError:
-                self._reset_channel()
+                self._reset_channel(control)
                 raise IpcError("internal", "Malformed reply from the ROS worker") from None
             if reply.get("id") != rid:
                 continue  # a late reply to an earlier, timed-out call

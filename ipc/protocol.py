@@ -19,7 +19,8 @@ from typing import Any
 import msgpack
 
 VERSION = 1
-SOCKET_NAME = "rosworker.sock"
+SOCKET_NAME = "rosworker.sock"               # work: every command, served by the ROS thread
+CONTROL_SOCKET_NAME = "rosworker-ctl.sock"    # control: ping and stats, never behind ROS work
 LOCK_NAME = "rosworker.lock"
 MAX_FRAME = 4 * 1024 * 1024          # requests larger than this are dropped unread
 MAX_REPLY_FRAME = 256 * 1024 * 1024  # a reply may carry a large sample
@@ -29,14 +30,22 @@ COMMANDS = (
     "ping", "stats", "graph", "sample", "subscribe", "evict", "publish", "type_info", "pool",
     "debug_sleep",
 )
-# Commands the IPC thread answers itself, without queueing behind ROS work.
+# Commands answered from counters by the control thread, without queueing behind ROS work;
+# clients send them to the control socket.
 IMMEDIATE = ("ping", "stats")
 # Commands that may be sent again after a timeout (publish is not).
 IDEMPOTENT = frozenset(c for c in COMMANDS if c != "publish")
 
 
 def endpoint(runtime_dir: str) -> str:
+    """The work socket of the ROS worker serving ``runtime_dir``."""
     return "ipc://" + os.path.join(runtime_dir, SOCKET_NAME)
+
+
+def control_endpoint(work_endpoint: str) -> str:
+    """The control socket beside a work socket (``.../rosworker.sock`` → ``.../rosworker-ctl.sock``)."""
+    head, sep, _ = work_endpoint.rpartition("/")
+    return f"{head}{sep}{CONTROL_SOCKET_NAME}" if sep else work_endpoint + "-ctl"
 
 
 def pack(message: dict[str, Any]) -> bytes:

@@ -1,26 +1,22 @@
-"""The ROS worker's IPC thread: the ROUTER socket, the lock, and the stand-in front.
+"""The ROS worker's side of the wire: the runtime lock, binding, request decoding, the control thread.
 
-This thread never touches rclpy.  It
+The ROS worker serves two ROUTER sockets in its runtime directory:
 
-- holds an exclusive ``flock`` on ``<runtime_dir>/rosworker.lock`` before it
-  binds, so a second worker on the same directory cannot steal the socket;
-- binds the ROUTER and shares it with the ROS thread: whoever holds the
-  executor's ``front_lock`` serves it (see ``rosworker/executor.py``).  The
-  ROS thread normally does, so that a warm sample is read, answered and
-  sent back by one thread.  This thread serves it (``front``) from start-up
-  until the ROS thread claims it (``back`` on the reply pair), when the ROS
-  thread hands it over (``take``: someone waits on a cold topic), and when a
-  task has run longer than ``TAKEOVER_AFTER_MS`` (it takes the lock, which the
-  ROS thread never holds while it works), so that ``ping``/``stats`` never wait
-  behind ROS work;
-- as the front, decodes requests (:meth:`IpcServer._receive`, the same code
-  the ROS thread runs when it is the front): drops frames that are not
-  requests (counted), answers malformed ones with an error, answers
-  ``ping``/``stats`` at once, queues everything else for the ROS thread
-  (``backpressure`` when full), and forwards the ROS thread's replies (which
-  then arrive on the inproc pair) to the clients;
-- checks the watchdog every ``WATCH_TICK`` (not the front) or
-  ``WATCHDOG_CHECK`` (the front) seconds.
+- ``rosworker.sock`` (work): served by the ROS thread itself
+  (``rosworker/executor.py``), which reads, queues, runs and answers every
+  command there;
+- ``rosworker-ctl.sock`` (control): served by :class:`ControlServer`, a thread
+  that never touches rclpy.  It answers ``ping`` and ``stats`` from counters,
+  at once, whatever the ROS thread is doing, and checks the watchdog every
+  ``WATCHDOG_CHECK`` seconds.  So ``/health`` and the supervisor's health
+  check never wait behind ROS work.
+
+Both sockets decode requests with :func:`read_requests`: frames that are not
+requests are dropped (counted in ``ipc_dropped_frames``), malformed requests
+that carry an id get an error reply.  Before anything is bound, the worker
+holds an exclusive ``flock`` on ``<runtime_dir>/rosworker.lock``
+(:class:`RuntimeLock`), so a second worker on the same directory cannot steal
+the sockets.
 """
 
 from __future__ import annotations
@@ -30,6 +26,8 @@ import logging
 import os
 import threading
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import zmq
@@ -37,17 +35,11 @@ import zmq
 from . import protocol
 from .errors import IpcError
 
-# One-frame signals from the ROS thread on the reply pair (replies have two frames).
-TAKE = b"take"   # serve the ROUTER: the ROS thread stops polling it (cold waiters, shutdown)
-BACK = b"back"   # hand it back, after forwarding the replies that came before
-
 log = logging.getLogger("sovd.rosworker.ipc")
 
-WATCHDOG_CHECK = 0.05
-WATCH_TICK = 0.02          # seconds between looks at the ROS thread while it is the front
-TAKEOVER_AFTER_MS = 20     # a task running this long hands the socket to this thread
-HANDOVER_WAIT = 1.0        # seconds to wait for the lock the ROS thread gave away
-CLOSE_GRACE = 0.25         # seconds the socket stays open after the last replies (see _linger)
+WATCHDOG_CHECK = 0.05      # seconds between looks at the ROS thread's current task
+READ_BATCH = 1000          # requests read in one go before the reader returns
+LOCK_RETRY = 0.05
 
 
 class LockHeld(RuntimeError):
@@ -59,16 +51,23 @@ class RuntimeLock:
         self.path = os.path.join(runtime_dir, protocol.LOCK_NAME)
         self._fh = None
 
-    def acquire(self) -> None:
-        fh = open(self.path, "a+")
-        try:
-            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            fh.seek(0)
-            holder = fh.read().strip() or "another process"
-            fh.close()
-            raise LockHeld(f"another ROS worker (pid {holder}) already serves {os.path.dirname(self.path)}; "
-                           "refusing to take its socket") from None
+    def acquire(self, wait: float = 0.0) -> None:
+        """Take the lock, waiting up to ``wait`` seconds for a holder that is going away."""
+        fh = open(self.path, "a+")  # noqa: SIM115 - held while the worker runs
+        deadline = time.monotonic() + wait
+        while True:
+            try:
+                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except OSError:
+                if time.monotonic() < deadline:
+                    time.sleep(LOCK_RETRY)
+                    continue
+                fh.seek(0)
+                holder = fh.read().strip() or "another process"
+                fh.close()
+                raise LockHeld(f"another ROS worker (pid {holder}) already serves "
+                               f"{os.path.dirname(self.path)}; refusing to take its socket") from None
         fh.seek(0)
         fh.truncate()
         fh.write(str(os.getpid()))
@@ -82,227 +81,152 @@ class RuntimeLock:
             self._fh = None
 
 
-class IpcServer:
-    """Runs on its own thread; see the module docstring."""
+def bind_router(zctx: zmq.Context, runtime_dir: str, name: str) -> zmq.Socket:
+    """A ROUTER bound to ``ipc://<runtime_dir>/<name>``, private to the service user (0600)."""
+    router = zctx.socket(zmq.ROUTER)
+    router.setsockopt(zmq.LINGER, 500)
+    router.setsockopt(zmq.MAXMSGSIZE, protocol.MAX_FRAME)
+    # Per peer: a client has one request in flight per socket, so 1000 is far above
+    # need, and it bounds what a hostile peer makes the worker buffer.
+    router.setsockopt(zmq.RCVHWM, 1000)
+    router.setsockopt(zmq.SNDHWM, 1000)
+    path = os.path.join(runtime_dir, name)
+    if os.path.exists(path):
+        os.unlink(path)  # stale: we hold the lock, so nobody else serves it
+    old_umask = os.umask(0o177)
+    try:
+        router.bind("ipc://" + path)
+    finally:
+        os.umask(old_umask)
+    os.chmod(path, 0o600)
+    return router
 
-    def __init__(self, zctx: zmq.Context, runtime_dir: str, executor, stats, info: dict[str, Any]):
+
+@dataclass(slots=True)
+class Request:
+    identity: bytes
+    rid: int
+    cmd: str
+    args: dict
+    budget_ms: int
+
+
+def reply_frame(rid: int, result: dict[str, Any] | None = None, error: IpcError | None = None) -> bytes:
+    if error is not None:
+        return protocol.pack({"v": protocol.VERSION, "id": rid, "ok": False, "error": error.to_wire()})
+    return protocol.pack({"v": protocol.VERSION, "id": rid, "ok": True, "result": result})
+
+
+def read_requests(router: zmq.Socket, stats, accept: Callable[[Request], None]) -> None:
+    """Read the requests waiting on ``router`` and hand each valid one to ``accept``.
+
+    ``accept`` may raise :class:`IpcError`, which is answered to that request.
+    """
+    for _ in range(READ_BATCH):
+        if not router.get(zmq.EVENTS) & zmq.POLLIN:
+            return
+        try:
+            frames = router.recv_multipart(zmq.NOBLOCK)
+        except zmq.Again:
+            return
+        if len(frames) != 2:
+            stats.ipc_dropped_frames += 1
+            continue
+        identity, frame = frames
+        try:
+            message = protocol.unpack(frame)
+        except ValueError as exc:
+            stats.ipc_dropped_frames += 1
+            log.debug("dropped a frame: %s", exc)
+            continue
+        rid = message.get("id")
+        if isinstance(rid, bool) or not isinstance(rid, int):
+            stats.ipc_dropped_frames += 1
+            continue
+        try:
+            accept(_decode(identity, rid, message))
+        except IpcError as exc:
+            _send(router, identity, reply_frame(rid, error=exc))
+
+
+def _decode(identity: bytes, rid: int, message: dict) -> Request:
+    if message.get("v") != protocol.VERSION:
+        raise IpcError("unsupported-version",
+                       f"protocol version {message.get('v')!r} is not supported (this worker speaks "
+                       f"{protocol.VERSION})", {"supported": protocol.VERSION})
+    cmd = message.get("cmd")
+    args = message.get("args", {})
+    budget = message.get("deadline_ms", 5000)
+    if not isinstance(cmd, str) or cmd not in protocol.COMMANDS:
+        raise IpcError("unknown-command", f"unknown command {str(cmd)[:64]!r}")
+    if not isinstance(args, dict):
+        raise IpcError("bad-request", "args: expected a map")
+    if isinstance(budget, bool) or not isinstance(budget, int) or not (0 < budget <= 600000):
+        raise IpcError("bad-request", "deadline_ms: expected an integer from 1 to 600000")
+    return Request(identity, rid, cmd, args, budget)
+
+
+def _send(router: zmq.Socket, identity: bytes, frame: bytes) -> None:
+    try:
+        router.send_multipart([identity, frame], zmq.NOBLOCK)
+    except zmq.ZMQError:
+        pass  # the client went away; its reply has no one to go to
+
+
+class ControlServer:
+    """The control thread: ``ping`` and ``stats`` on ``rosworker-ctl.sock``, and the watchdog."""
+
+    def __init__(self, zctx: zmq.Context, runtime_dir: str, stats, info: dict[str, Any]):
         self.zctx = zctx
         self.runtime_dir = runtime_dir
-        self.executor = executor
         self.stats = stats
         self.info = info
         self.started = time.monotonic()
-        self._closing = threading.Event()   # stop accepting work; answer "shutdown"
-        self._finished = threading.Event()  # the ROS thread is done: flush and exit
+        self._stop = threading.Event()
         self._ready = threading.Event()
         self._error: BaseException | None = None
-        self._front = False                 # this thread serves the ROUTER (see the docstring)
-        self._thread = threading.Thread(target=self._run, name="ipc", daemon=True)
+        self._thread = threading.Thread(target=self._run, name="ipc-control", daemon=True)
+
+    def answer(self, cmd: str) -> dict[str, Any]:
+        """The result of ``ping`` or ``stats`` (also used by the ROS thread on the work socket)."""
+        if cmd == "ping":
+            return {**self.info, "pid": os.getpid(), "uptime_s": round(time.monotonic() - self.started, 3),
+                    "protocol": protocol.VERSION}
+        return {**self.stats.snapshot(), "pid": os.getpid()}
 
     def start(self, timeout: float = 5.0) -> None:
         self._thread.start()
         if not self._ready.wait(timeout):
-            raise RuntimeError("the IPC thread did not start in time")
+            raise RuntimeError("the IPC control thread did not start in time")
         if self._error is not None:
             raise self._error
 
-    def close_for_work(self) -> None:
-        self._closing.set()
-
     def finish(self, timeout: float = 3.0) -> None:
-        self._closing.set()
-        self._finished.set()
+        self._stop.set()
         self._thread.join(timeout)
 
-    # ---- the thread ---------------------------------------------------------------------
-    def _bind(self) -> tuple[zmq.Socket, zmq.Socket]:
-        pair = self.executor.bind_replies()
-        router = self.zctx.socket(zmq.ROUTER)
-        router.setsockopt(zmq.LINGER, 500)
-        router.setsockopt(zmq.MAXMSGSIZE, protocol.MAX_FRAME)
-        # Per peer: a client has one request in flight per thread, so 1000 is far above
-        # need, and it bounds what a hostile peer makes the worker buffer.
-        router.setsockopt(zmq.RCVHWM, 1000)
-        router.setsockopt(zmq.SNDHWM, 1000)
-        path = os.path.join(self.runtime_dir, protocol.SOCKET_NAME)
-        if os.path.exists(path):
-            os.unlink(path)  # stale: we hold the lock, so nobody else serves it
-        old_umask = os.umask(0o177)
-        try:
-            router.bind(protocol.endpoint(self.runtime_dir))
-        finally:
-            os.umask(old_umask)
-        os.chmod(path, 0o600)
-        return router, pair
+    def _accept(self, router: zmq.Socket, request: Request) -> None:
+        if request.cmd not in protocol.IMMEDIATE:
+            raise IpcError("bad-request", f"the control socket answers {', '.join(protocol.IMMEDIATE)} only; "
+                                          f"send {request.cmd!r} to {protocol.SOCKET_NAME}")
+        _send(router, request.identity, reply_frame(request.rid, self.answer(request.cmd)))
 
     def _run(self) -> None:
-        lock = self.executor.front_lock
-        lock.acquire()  # the front until the ROS thread claims the socket
         try:
-            router, pair = self._bind()
+            router = bind_router(self.zctx, self.runtime_dir, protocol.CONTROL_SOCKET_NAME)
         except BaseException as exc:
             self._error = exc
-            lock.release()
             self._ready.set()
             return
-        self.executor.attach_front(router, self._receive)
         self._ready.set()
-        self._front = True
-        front_poller = zmq.Poller()
-        front_poller.register(router, zmq.POLLIN)
-        front_poller.register(pair, zmq.POLLIN)
-        watch_poller = zmq.Poller()
-        watch_poller.register(pair, zmq.POLLIN)
         try:
-            while True:
-                if self._front:
-                    events = dict(front_poller.poll(int(WATCHDOG_CHECK * 1000)))
-                    if pair in events:
-                        self._from_ros(pair, router)
-                    if self._front and router in events:
-                        self._receive(router)
-                else:
-                    if watch_poller.poll(int(WATCH_TICK * 1000)):
-                        self._from_ros(pair, router)
-                    elif self.stats.current_task_age_ms() >= TAKEOVER_AFTER_MS and lock.acquire(blocking=False):
-                        self._front = True  # the ROS thread is stuck in a task: stand in for it
+            while not self._stop.is_set():
+                if router.poll(int(WATCHDOG_CHECK * 1000), zmq.POLLIN):
+                    read_requests(router, self.stats, lambda request: self._accept(router, request))
                 self.stats.check_watchdog()
-                if self._finished.is_set():
-                    # The ROS thread is done and has handed the socket over: flush and exit.
-                    if self._front or lock.acquire(timeout=HANDOVER_WAIT):
-                        self._front = True
-                        self._from_ros(pair, router)
-                        self._linger(router, pair)
-                    break
         finally:
-            if self._front:
-                lock.release()
-            router.close(linger=500)
-            pair.close(linger=0)
-            path = os.path.join(self.runtime_dir, protocol.SOCKET_NAME)
+            router.close(linger=0)
             try:
-                os.unlink(path)
+                os.unlink(os.path.join(self.runtime_dir, protocol.CONTROL_SOCKET_NAME))
             except OSError:
                 pass
-
-    def _linger(self, router: zmq.Socket, pair: zmq.Socket) -> None:
-        """Keep the socket open for ``CLOSE_GRACE`` after the last replies (answering "shutdown").
-
-        Clients connect with ``ZMQ_IMMEDIATE`` (a request sent while the worker is down must
-        fail, not wait for its successor), and libzmq then drops what a client has received
-        but not yet read when the connection goes: without this pause, the answers to woken
-        waiters and drained commands could be lost at the very end.
-        """
-        until = time.monotonic() + CLOSE_GRACE
-        poller = zmq.Poller()
-        poller.register(router, zmq.POLLIN)
-        poller.register(pair, zmq.POLLIN)
-        while (left := until - time.monotonic()) > 0:
-            events = dict(poller.poll(max(1, int(left * 1000))))
-            if pair in events:
-                self._from_ros(pair, router)
-            if router in events:
-                self._receive(router)
-
-    def _from_ros(self, pair: zmq.Socket, router: zmq.Socket) -> None:
-        """Handle what the ROS thread sent, in order: replies to forward, ``take``, ``back``."""
-        lock = self.executor.front_lock
-        for _ in range(10000):
-            if not pair.get(zmq.EVENTS) & zmq.POLLIN:
-                return
-            try:
-                frames = pair.recv_multipart(zmq.NOBLOCK, copy=False)
-            except zmq.Again:
-                return
-            if len(frames) == 1:
-                signal = frames[0].bytes
-                if signal == TAKE and not self._front:
-                    if not lock.acquire(timeout=HANDOVER_WAIT):
-                        log.error("the ROS thread handed the IPC socket over but kept its lock")
-                        continue
-                    self._front = True
-                elif signal == BACK and self._front and not self._finished.is_set():
-                    self._front = False
-                    lock.release()
-                continue  # a stale take/back: the state it asks for is already there
-            if len(frames) != 2:
-                continue
-            if not self._front:
-                # A reply sent while we were not the front: the ROS thread lost the lock to
-                # a take-over that has not happened yet here; take the socket now.
-                if not lock.acquire(timeout=HANDOVER_WAIT):
-                    log.error("could not take the IPC socket to forward a reply")
-                    continue
-                self._front = True
-            try:
-                router.send_multipart(frames, zmq.NOBLOCK, copy=False)
-            except zmq.ZMQError:
-                pass  # the client went away; its reply has no one to go to
-
-    def _receive(self, router: zmq.Socket) -> None:
-        """Read the requests waiting on the ROUTER (run by whichever thread is the front)."""
-        for _ in range(1000):
-            if not router.get(zmq.EVENTS) & zmq.POLLIN:
-                return
-            try:
-                frames = router.recv_multipart(zmq.NOBLOCK)
-            except zmq.Again:
-                return
-            if len(frames) != 2:
-                self.stats.ipc_dropped_frames += 1
-                continue
-            identity, frame = frames
-            try:
-                request = protocol.unpack(frame)
-            except ValueError as exc:
-                self.stats.ipc_dropped_frames += 1
-                log.debug("dropped a frame: %s", exc)
-                continue
-            rid = request.get("id")
-            if isinstance(rid, bool) or not isinstance(rid, int):
-                self.stats.ipc_dropped_frames += 1
-                continue
-            try:
-                self._dispatch(router, identity, rid, request)
-            except IpcError as exc:
-                self._reply(router, identity, rid, error=exc)
-
-    def _dispatch(self, router: zmq.Socket, identity: bytes, rid: int, request: dict) -> None:
-        if request.get("v") != protocol.VERSION:
-            raise IpcError("unsupported-version",
-                           f"protocol version {request.get('v')!r} is not supported (this worker speaks "
-                           f"{protocol.VERSION})", {"supported": protocol.VERSION})
-        cmd = request.get("cmd")
-        args = request.get("args", {})
-        budget = request.get("deadline_ms", 5000)
-        if not isinstance(cmd, str) or cmd not in protocol.COMMANDS:
-            raise IpcError("unknown-command", f"unknown command {str(cmd)[:64]!r}")
-        if not isinstance(args, dict):
-            raise IpcError("bad-request", "args: expected a map")
-        if isinstance(budget, bool) or not isinstance(budget, int) or not (0 < budget <= 600000):
-            raise IpcError("bad-request", "deadline_ms: expected an integer from 1 to 600000")
-        if cmd == "ping":
-            self._reply(router, identity, rid, result={
-                **self.info, "pid": os.getpid(), "uptime_s": round(time.monotonic() - self.started, 3),
-                "protocol": protocol.VERSION})
-            return
-        if cmd == "stats":
-            self._reply(router, identity, rid, result={**self.stats.snapshot(), "pid": os.getpid()})
-            return
-        if self._closing.is_set():
-            raise IpcError("shutdown", "The gateway is shutting down")
-        if not self.executor.submit(cmd, args, identity, rid, time.monotonic() + budget / 1000):
-            raise IpcError("backpressure",
-                           f"The ROS worker's queue is full ({self.executor.max_queue_depth} pending); "
-                           "retry shortly", {"max_queue_depth": self.executor.max_queue_depth})
-
-    def _reply(self, router: zmq.Socket, identity: bytes, rid: int, result: dict | None = None,
-               error: IpcError | None = None) -> None:
-        if error is not None:
-            message = {"v": protocol.VERSION, "id": rid, "ok": False, "error": error.to_wire()}
-        else:
-            message = {"v": protocol.VERSION, "id": rid, "ok": True, "result": result}
-        try:
-            router.send_multipart([identity, protocol.pack(message)], zmq.NOBLOCK)
-        except zmq.ZMQError:
-            pass

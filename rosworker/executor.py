@@ -1,43 +1,31 @@
 """The single ROS thread: every rclpy call of the gateway runs here.
 
-Who reads the IPC socket (the ROUTER that ``ipc/server.py`` binds) is the
-*front*, and it moves between two threads; ``front_lock`` says who may touch
-the socket right now:
+The ROS thread owns the work socket (``rosworker.sock``, a ROUTER) outright.
+Between its own work it polls that socket, reads every request waiting there
+(:func:`ipc.server.read_requests`), queues them (``backpressure`` at once
+beyond ``max_queue_depth``), runs them and sends each reply straight back.  A
+warm sample is read, answered and sent by this one thread: no hand-off
+between threads, no lock.
 
-- normally the ROS thread is the front: between its own work it polls the
-  ROUTER, reads the requests (``ping``/``stats`` are answered at once, the
-  rest go into the bounded deque, ``backpressure`` beyond it), runs them and
-  sends each reply straight back on the ROUTER.  A warm sample costs no
-  hand-off between threads at all;
-- the IPC thread is the front while the ROS thread cannot poll: from start-up
-  until the ROS thread claims the socket, while somebody waits on a cold
-  topic (the ROS thread then sleeps in an rcl wait set), and when a task has
-  run longer than the IPC thread's take-over limit (so ``ping``/``stats``
-  never wait behind ROS work).  It then queues work with :meth:`submit` and
-  forwards the replies the ROS thread sends over an inproc PAIR.
+``ping`` and ``stats`` are answered by the control thread on a socket of its
+own (``ipc/server.py``), so they never wait behind ROS work, however long the
+queue or the task that runs.  (Sent to the work socket, they are answered at
+once when read, for older clients.)
 
-Hand-over: the ROS thread holds ``front_lock`` only while it polls, reads or
-sends; it gives the front away by sending ``take`` on the PAIR and asks for
-it back by sending ``back`` (the IPC thread forwards the replies that came
-before it, then releases the lock).  A take-over by the IPC thread is noticed
-by the ROS thread when it cannot get the lock to send a reply.
+Sleeping: in one ``zmq.Poller.poll`` over the work socket and a wake-up pipe
+(written by :meth:`RosExecutor.stop`, which is async-signal-safe), with the
+next timer as the timeout.  While callers wait for the first message of a
+cold topic the timeout is at most ``COLD_POLL`` and each cold subscription is
+tried (``take``) on every round; so no rcl wait set and no guard condition
+are needed, and a pooled topic costs nothing between reads.
 
-While the IPC thread is the front, the ROS thread sleeps in one of two ways:
+Timers (graph polling, idle sweep, cold-wait deadlines, stream ticks,
+publishers waiting for their subscribers) run on the same thread from a heap.
 
-- nobody waits on a cold topic: on a plain lock used as a wake-up flag
-  (``_wakeup``, held while no wake-up is pending), with the next timer as
-  its timeout; :meth:`submit` releases it only while the thread sleeps there;
-- somebody waits on a cold topic: in an rcl wait set holding those
-  subscriptions and a guard condition that :meth:`submit` triggers, so the
-  first message and new work both wake it at once.
-
-Each sleeping mode sets its flag *before* the thread looks at the queue one
-last time, and ``submit`` reads the flags *after* appending under the same
-lock, so a task is never left in the queue while the thread sleeps.  A
-pooled topic costs nothing either way.
-
-Timers (graph polling, idle sweep, cold-wait deadlines) run on the same
-thread from a heap.
+Containment: an exception in a task answers that task's caller with an
+error; an exception anywhere else on this thread (a timer, a cold-topic
+wake-up, the idle hook) is logged, rate-limited per place, and counted in
+``loop_errors``.  Nothing but :meth:`RosExecutor.stop` ends the thread.
 """
 
 from __future__ import annotations
@@ -46,25 +34,27 @@ import collections
 import heapq
 import itertools
 import logging
+import math
+import os
 import threading
 import time
 from collections.abc import Callable
 from typing import Any
 
 import zmq
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
 from ipc import protocol
 from ipc.errors import IpcError
-from ipc.server import BACK, TAKE
+from ipc.server import Request, bind_router, read_requests, reply_frame
 
 from .stats import Stats
 
 log = logging.getLogger("sovd.rosworker.executor")
 
-REPLIES_ENDPOINT = "inproc://rosworker-replies"
-IDLE_WAIT_CAP = 1.0  # seconds: the loop wakes at least this often
-CLAIM_WAIT = 1.0     # seconds the ROS thread waits for the IPC thread to hand the socket back
+IDLE_WAIT_CAP = 1.0   # seconds: the loop wakes at least this often
+COLD_POLL = 0.002     # seconds between looks at cold subscriptions while somebody waits on one
+CLOSE_GRACE = 0.25    # seconds the socket stays open after the last replies (see linger())
+ERROR_LOG_EVERY = 10.0  # seconds: one traceback per place and period, the rest are counted
 
 
 class Task:
@@ -72,14 +62,14 @@ class Task:
 
     __slots__ = ("cmd", "args", "identity", "rid", "deadline", "answered", "_executor")
 
-    def __init__(self, cmd: str, args: dict, identity: bytes, rid: int, deadline: float):
-        self.cmd = cmd
-        self.args = args
-        self.identity = identity
-        self.rid = rid
+    def __init__(self, executor: RosExecutor, request: Request, deadline: float):
+        self.cmd = request.cmd
+        self.args = request.args
+        self.identity = request.identity
+        self.rid = request.rid
         self.deadline = deadline
         self.answered = False
-        self._executor: RosExecutor | None = None
+        self._executor = executor
 
     def reply(self, result: dict[str, Any]) -> None:
         if not self.answered:
@@ -106,105 +96,78 @@ class Timer:
 
 
 class RosExecutor:
-    """Owns the ROS thread, its task queue, its timers and its wake-up paths."""
+    """Owns the ROS thread, the work socket, the task queue and the timers."""
 
-    def __init__(self, context, zctx: zmq.Context, stats: Stats, max_queue_depth: int):
-        self._context = context
+    def __init__(self, zctx: zmq.Context, runtime_dir: str, stats: Stats, max_queue_depth: int,
+                 immediate: Callable[[str], dict[str, Any]] | None = None):
         self._zctx = zctx
+        self.runtime_dir = runtime_dir
         self.stats = stats
         self.max_queue_depth = max_queue_depth
+        self._immediate = immediate            # ping/stats sent to the work socket
         self._queue: collections.deque[Task] = collections.deque()
-        self._lock = threading.Lock()
-        self._guard = _rclpy.GuardCondition(context.handle)
         self._timers: list[tuple[float, int, Timer]] = []
         self._seq = itertools.count()
         self._stopping = threading.Event()
-        self._sock: zmq.Socket | None = None       # ROS thread's end of the reply pair
-        self._replies: zmq.Socket | None = None    # IPC thread's end
-        # The front (see the module docstring).
-        self.front_lock = threading.Lock()
+        self.closing = False                   # after run(): new work is answered "shutdown"
         self._router: zmq.Socket | None = None
-        self._read_requests: Callable[[zmq.Socket], None] | None = None
-        self._front = False                         # ROS thread's view: it serves the ROUTER
-        self._front_poller: zmq.Poller | None = None
-        # Wake-up of the ROS thread while the IPC thread is the front.
-        self._wakeup = threading.Lock()
-        self._wakeup.acquire()                      # held: no wake-up pending
-        self._sleeping_on_lock = False
-        self._sleeping_in_rcl = False
+        self._poller: zmq.Poller | None = None
+        self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
+        self._last_reply = 0.0
+        self._error_logged: dict[str, float] = {}
         self.handlers: dict[str, Callable[[Task], None]] = {}
-        # Set by the pool: subscriptions that callers wait on, and what to do when one is ready.
+        # Set by the pool: entries that callers wait on, and what to do with one.
         self.cold_entries: Callable[[], list] = lambda: []
         self.on_ready: Callable[[Any], None] = lambda entry: None
         self.on_idle: Callable[[], None] = lambda: None
-        self.thread_ident: int | None = None
 
-    # ---- called from the IPC thread -------------------------------------------------
-    def bind_replies(self) -> zmq.Socket:
-        """Create the IPC thread's end of the reply pair (call on the IPC thread, first)."""
-        self._replies = self._zctx.socket(zmq.PAIR)
-        self._replies.setsockopt(zmq.SNDHWM, 0)
-        self._replies.setsockopt(zmq.RCVHWM, 0)
-        self._replies.setsockopt(zmq.LINGER, 0)
-        self._replies.bind(REPLIES_ENDPOINT)
-        return self._replies
-
-    def attach_front(self, router: zmq.Socket, read_requests: Callable[[zmq.Socket], None]) -> None:
-        """The ROUTER the ROS thread may serve, and how requests are read from it.
-
-        Called on the IPC thread while it holds ``front_lock`` (it is the front until
-        the ROS thread claims the socket).
-        """
-        self._router = router
-        self._read_requests = read_requests
-
-    def submit(self, cmd: str, args: dict, identity: bytes, rid: int, deadline: float) -> bool:
-        """Queue a command; False when the queue is full (the caller answers backpressure)."""
-        task = Task(cmd, args, identity, rid, deadline)
-        with self._lock:
-            if len(self._queue) >= self.max_queue_depth:
-                self.stats.queue_dropped += 1
-                return False
-            task._executor = self
-            self._queue.append(task)
-            depth = len(self._queue)
-            self.stats.queue_depth = depth
-            if depth > self.stats.queue_max_depth_observed:
-                self.stats.queue_max_depth_observed = depth
-        # Read after the append (see the module docstring): a busy thread needs no wake-up.
-        if self._sleeping_on_lock:
-            self._wake()
-        elif self._sleeping_in_rcl:
-            self._guard.trigger_guard_condition()
-        return True
-
-    def _wake(self) -> None:
-        try:
-            self._wakeup.release()
-        except RuntimeError:
-            pass  # a wake-up is already pending
-
+    # ---- any thread -------------------------------------------------------------------
     def stop(self) -> None:
-        """Ask the ROS thread to finish: it drains the queue and returns.
-
-        Takes no lock: it may run in a signal handler on the ROS thread itself.
-        """
+        """Ask the ROS thread to finish its loop; safe in a signal handler (no lock, no zmq)."""
         self._stopping.set()
-        self._wake()
         try:
-            self._guard.trigger_guard_condition()
-        except Exception:  # the context may already be gone
-            pass
+            os.write(self._wake_w, b"x")
+        except OSError:
+            pass  # the pipe is full (a wake-up is pending) or already closed
 
     @property
     def stopping(self) -> bool:
         return self._stopping.is_set()
 
-    # ---- ROS thread -------------------------------------------------------------------
+    # ---- ROS thread: set-up ------------------------------------------------------------
+    def bind(self) -> None:
+        """Bind the work socket (call on the ROS thread before :meth:`run`)."""
+        self._router = bind_router(self._zctx, self.runtime_dir, protocol.SOCKET_NAME)
+        self._poller = zmq.Poller()
+        self._poller.register(self._router, zmq.POLLIN)
+        self._poller.register(self._wake_r, zmq.POLLIN)
+
     def call_later(self, delay: float, fn: Callable[[], None]) -> Timer:
         timer = Timer(time.monotonic() + delay, fn)
         heapq.heappush(self._timers, (timer.when, next(self._seq), timer))
         return timer
+
+    # ---- ROS thread: requests and replies ---------------------------------------------
+    def _read(self) -> None:
+        read_requests(self._router, self.stats, self._accept)
+
+    def _accept(self, request: Request) -> None:
+        """One decoded request: answer it now, queue it, or refuse it (raises IpcError)."""
+        if request.cmd in protocol.IMMEDIATE and self._immediate is not None:
+            self._send_frame(request.identity, reply_frame(request.rid, self._immediate(request.cmd)))
+            return
+        if self.closing:
+            raise IpcError("shutdown", "The gateway is shutting down")
+        if len(self._queue) >= self.max_queue_depth:
+            self.stats.queue_dropped += 1
+            raise IpcError("backpressure",
+                           f"The ROS worker's queue is full ({self.max_queue_depth} pending); retry shortly",
+                           {"max_queue_depth": self.max_queue_depth})
+        self._queue.append(Task(self, request, time.monotonic() + request.budget_ms / 1000))
+        depth = len(self._queue)
+        self.stats.queue_depth = depth
+        if depth > self.stats.queue_max_depth_observed:
+            self.stats.queue_max_depth_observed = depth
 
     def _send(self, task: Task, message: dict) -> None:
         try:
@@ -213,17 +176,32 @@ class RosExecutor:
             log.exception("could not encode the reply to %s", task.cmd)
             frame = protocol.pack({"v": protocol.VERSION, "id": task.rid, "ok": False,
                                    "error": IpcError("internal", "reply could not be encoded").to_wire()})
-        if self._front:
-            if self.front_lock.acquire(blocking=False):
-                try:
-                    self._router.send_multipart([task.identity, frame], zmq.NOBLOCK, copy=False)
-                except zmq.ZMQError:
-                    pass  # the client went away (or its queue is full): nobody to answer
-                finally:
-                    self.front_lock.release()
-                return
-            self._front = False  # the IPC thread took the socket over while we worked
-        self._sock.send_multipart([task.identity, frame], copy=False)
+        self._send_frame(task.identity, frame)
+
+    def _send_frame(self, identity: bytes, frame: bytes) -> None:
+        self._last_reply = time.monotonic()
+        try:
+            self._router.send_multipart([identity, frame], zmq.NOBLOCK, copy=False)
+        except zmq.ZMQError:
+            pass  # the client went away (or its queue is full): nobody to answer
+
+    # ---- ROS thread: the loop ----------------------------------------------------------
+    def guarded(self, where: str, fn: Callable[..., Any], *args: Any) -> Any:
+        """Run ``fn``; an exception is logged (once per ``where`` and period) and counted, never raised."""
+        try:
+            return fn(*args)
+        except Exception:
+            self._contained(where)
+            return None
+
+    def _contained(self, where: str) -> None:
+        """Count the exception being handled; log its traceback once per ``where`` and period."""
+        self.stats.loop_errors += 1
+        now = time.monotonic()
+        if now - self._error_logged.get(where, -ERROR_LOG_EVERY) >= ERROR_LOG_EVERY:
+            self._error_logged[where] = now
+            log.exception("%s failed (contained; further failures here are counted and "
+                          "logged at most every %g s)", where, ERROR_LOG_EVERY)
 
     def _next_timeout(self) -> float:
         while self._timers and self._timers[0][2].cancelled:
@@ -244,17 +222,9 @@ class RosExecutor:
                 timer.fn()
             except Exception:
                 ok = False
-                log.exception("timer task failed")
+                self._contained("a timer")
             finally:
                 self.stats.task_finished(started, ok)
-
-    def _pop(self) -> Task | None:
-        with self._lock:
-            if not self._queue:
-                return None
-            task = self._queue.popleft()
-            self.stats.queue_depth = len(self._queue)
-            return task
 
     def _run_task(self, task: Task) -> None:
         started = self.stats.task_started()
@@ -280,112 +250,76 @@ class RosExecutor:
             self.stats.task_finished(started, ok, task.cmd)
 
     def drain(self) -> None:
-        while True:
-            task = self._pop()
-            if task is None:
+        """Run what is queued now; requests that come meanwhile are read between tasks."""
+        for _ in range(len(self._queue)):
+            if not self._queue:
                 break
+            task = self._queue.popleft()
+            self.stats.queue_depth = len(self._queue)
             self._run_task(task)
+            if self._router is not None and self._router.get(zmq.EVENTS) & zmq.POLLIN:
+                self._read()
 
-    # ---- the front ----------------------------------------------------------------------
-    def _serve_front(self, timeout: float) -> None:
-        """Poll the ROUTER until a request or ``timeout``; read what came (ROS thread, front)."""
-        if not self.front_lock.acquire(blocking=False):
-            self._front = False  # taken over during the last task; the IPC thread serves now
-            return
-        try:
-            if self._queue or self._stopping.is_set():
-                timeout = 0.0
-            if self._front_poller.poll(int(timeout * 1000)):
-                self._read_requests(self._router)
-        finally:
-            self.front_lock.release()
-
-    def _leave_front(self) -> None:
-        if self._front:
-            self._front = False
-            self._sock.send(TAKE)
-
-    def _claim_front(self) -> None:
-        self._sock.send(BACK)
-        if self.front_lock.acquire(timeout=CLAIM_WAIT):
-            self._front = True
-            self.front_lock.release()
-        # else: the IPC thread is slow to answer; it hands the socket back later and the
-        # next round claims it again (a second "back" is harmless).
-
-    def _settle_front(self) -> None:
-        """Leave the front while cold waiters need the rcl wait set; claim it back when idle."""
-        if self._router is None:
-            return
-        cold = bool(self.cold_entries())
-        if self._front:
-            if cold:
-                self._leave_front()
-        elif not cold and not self._queue and not self._stopping.is_set():
-            self._claim_front()
-
-    # ---- sleeping while the IPC thread is the front --------------------------------------
-    def _wait(self, timeout: float) -> None:
-        entries = self.cold_entries()
-        # The flag goes up before the last look at the queue; submit() reads it after appending.
-        if entries:
-            self._sleeping_in_rcl = True
-        else:
-            self._sleeping_on_lock = True
-        try:
-            with self._lock:
-                busy = bool(self._queue) or self._stopping.is_set()
-            if entries:  # looked at even when busy, so that cold waiters are served under load
-                self._wait_rcl(entries, 0.0 if busy else timeout)
-            elif not busy:
-                self._wakeup.acquire(timeout=timeout)
-        finally:
-            self._sleeping_on_lock = self._sleeping_in_rcl = False
-
-    def _wait_rcl(self, entries: list, timeout: float) -> None:
-        ws = _rclpy.WaitSet(len(entries), 1, 0, 0, 0, 0, self._context.handle)
-        ws.clear_entities()
-        ws.add_guard_condition(self._guard)
-        for entry in entries:
-            ws.add_subscription(entry.sub.handle)
-        ws.wait(int(timeout * 1e9))
-        ready = set(ws.get_ready_entities("subscription"))
-        for entry in entries:
-            if entry.sub is not None and entry.sub.handle.pointer in ready:
-                self.on_ready(entry)
+    def _wake_cold(self) -> None:
+        for entry in self.cold_entries():
+            self.guarded("a cold-topic wake-up", self.on_ready, entry)
 
     def run(self) -> None:
-        """The ROS thread's loop. Returns after :meth:`stop` once the queue is drained."""
-        self.thread_ident = threading.get_ident()
-        self._sock = self._zctx.socket(zmq.PAIR)
-        self._sock.setsockopt(zmq.SNDHWM, 0)
-        self._sock.setsockopt(zmq.RCVHWM, 0)
-        self._sock.setsockopt(zmq.LINGER, 1000)
-        self._sock.connect(REPLIES_ENDPOINT)
-        if self._router is not None:
-            self._front_poller = zmq.Poller()
-            self._front_poller.register(self._router, zmq.POLLIN)
-        try:
-            self._settle_front()
-            while not self._stopping.is_set():
-                if self._front:
-                    self._serve_front(self._next_timeout())
-                else:
-                    self._wait(self._next_timeout())
-                self._run_timers()
-                self.drain()
-                if self.stats.degraded and not self._queue:
-                    self.stats.degraded = False  # idle again: the episode is over
-                self.on_idle()
-                self._settle_front()
+        """The ROS thread's loop. Returns after :meth:`stop`; :meth:`finish` does the rest."""
+        while not self._stopping.is_set():
+            timeout = 0.0 if self._queue else self._next_timeout()
+            cold = bool(self.cold_entries())
+            if cold:
+                timeout = min(timeout, COLD_POLL)
+            events = dict(self._poller.poll(math.ceil(timeout * 1000)))
+            if self._wake_r in events:
+                self._drain_pipe()
+            if self._router in events:
+                self.guarded("reading requests", self._read)
+            self._run_timers()
+            if cold:
+                self._wake_cold()
             self.drain()
-        finally:
-            # Shutdown replies (woken waiters, the rest of the queue) go through the IPC
-            # thread, which also closes the socket.
-            self._leave_front()
+            if self.stats.degraded and not self._queue:
+                self.stats.degraded = False  # idle again: the episode is over
+            self.guarded("the idle hook", self.on_idle)
+
+    def _drain_pipe(self) -> None:
+        try:
+            while os.read(self._wake_r, 512):
+                pass
+        except OSError:
+            pass
+
+    # ---- ROS thread: the end -------------------------------------------------------------
+    def linger(self, grace: float = CLOSE_GRACE) -> None:
+        """Answer what comes with "shutdown" until ``grace`` s after the last reply.
+
+        Clients connect with ``ZMQ_IMMEDIATE`` (a request sent while the worker is
+        down must fail, not wait for its successor), and libzmq then drops what a
+        client has received but not yet read when the connection goes: without this
+        pause, the answers to woken waiters and drained commands could be lost.
+        """
+        self.closing = True
+        self.drain()
+        until = max(time.monotonic(), self._last_reply) + grace
+        while (left := until - time.monotonic()) > 0:
+            if dict(self._poller.poll(max(1, math.ceil(left * 1000)))).get(self._router):
+                self.guarded("reading requests", self._read)
+                self.drain()
 
     def close(self) -> None:
-        """Close the ROS thread's socket (call on the ROS thread after :meth:`run`)."""
-        if self._sock is not None:
-            self._sock.close(linger=1000)
-            self._sock = None
+        """Close the work socket and the wake-up pipe (ROS thread, after :meth:`linger`)."""
+        if self._router is not None:
+            self._router.close(linger=0)
+            self._router = None
+            try:
+                os.unlink(os.path.join(self.runtime_dir, protocol.SOCKET_NAME))
+            except OSError:
+                pass
+        for fd in (self._wake_r, self._wake_w):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+

@@ -1,6 +1,6 @@
 """A stand-in ROS worker for unit tests of the HTTP side: a real ZeroMQ ROUTER socket.
 
-It binds ``ipc://<runtime_dir>/rosworker.sock`` like the real one and answers
+It binds ``ipc://<runtime_dir>/rosworker.sock`` and ``rosworker-ctl.sock`` like the real one and answers
 the commands of ``ipc/PROTOCOL.md`` from canned data, in a thread:
 
     fw = FakeWorker().start()
@@ -36,11 +36,12 @@ DEFAULT_SUBSCRIPTIONS = (("/parameter_events", "rcl_interfaces/msg/ParameterEven
 STATS = {
     "data_provider": {"pool_size": 1, "pool_cap": 256, "pool_hits": 5, "pool_misses": 2,
                       "evictions_total": 0, "type_change_events": 0, "graph_events_received": 3,
-                      "concurrent_cold_waits": 0, "cold_wait_cap": 4, "unsupported_type_count": 0},
+                      "concurrent_cold_waits": 0, "cold_wait_cap": 4, "unsupported_type_count": 0,
+                      "undecodable_messages": 0, "pool_bytes": 2048, "pool_bytes_cap": 268435456},
     "executor": {"worker_alive": True, "degraded": False, "queue_depth": 0, "queue_max_depth_observed": 2,
                  "queue_dropped": 0, "tasks_completed": 9, "tasks_failed": 0, "last_task_latency_us": 120,
                  "max_task_latency_us": 900, "current_task_age_ms": 0, "watchdog_trips": 0,
-                 "graph_events_received": 3},
+                 "graph_events_received": 3, "loop_errors": 0},
 }
 
 
@@ -147,28 +148,35 @@ class FakeWorker:
 
     def _run(self) -> None:
         ctx = zmq.Context()
-        sock = ctx.socket(zmq.ROUTER)
-        sock.setsockopt(zmq.LINGER, 0)
-        sock.bind(self.endpoint)
+        sockets = []
+        for endpoint in (self.endpoint, protocol.control_endpoint(self.endpoint)):
+            sock = ctx.socket(zmq.ROUTER)
+            sock.setsockopt(zmq.LINGER, 0)
+            sock.bind(endpoint)
+            sockets.append(sock)
+        poller = zmq.Poller()
+        for sock in sockets:
+            poller.register(sock, zmq.POLLIN)
         self._bound.set()
-        pending: list[tuple[float, int, bytes, bytes]] = []
+        pending: list[tuple[float, int, zmq.Socket, bytes, bytes]] = []
         seq = itertools.count()
         try:
             while not self._stop.is_set():
                 timeout = 20
                 if pending:
                     timeout = max(0, min(timeout, int((pending[0][0] - time.monotonic()) * 1000)))
-                if sock.poll(timeout, zmq.POLLIN):
+                for sock, _ in poller.poll(timeout):
                     ident, frame = sock.recv_multipart()
                     reply = self._answer(frame)
                     if reply is not None:
                         due, payload = reply
-                        heapq.heappush(pending, (due, next(seq), ident, payload))
+                        heapq.heappush(pending, (due, next(seq), sock, ident, payload))
                 while pending and pending[0][0] <= time.monotonic():
-                    _, _, ident, payload = heapq.heappop(pending)
+                    _, _, sock, ident, payload = heapq.heappop(pending)
                     sock.send_multipart([ident, payload])
         finally:
-            sock.close(linger=0)
+            for sock in sockets:
+                sock.close(linger=0)
             ctx.term()
 
     def _answer(self, frame: bytes) -> tuple[float, bytes] | None:
@@ -214,7 +222,7 @@ class FakeWorker:
             return {"type": args["type"], **info}
         if cmd == "publish":
             return {"topic": args.get("topic"), "type": args.get("type"), "status": "published",
-                    "subscriber_count": 0}
+                    "subscriber_count": 1, "unmatched_subscriber_count": 0}
         return IpcError("unknown-command", f"unknown command {cmd!r}")
 
 
