@@ -106,6 +106,8 @@ SETTINGS: tuple[Setting, ...] = (
     # --- ROS worker (architecture.md's table) ---
     Setting("sample_timeout", float, 1.0, "seconds a cold read waits for the first message", 0.1, 30),
     Setting("max_pool_size", int, 256, "LRU cap on pooled topic subscriptions", 1, 4096),
+    Setting("max_pool_bytes", int, 256 * 2**20, "bytes of kept messages (raw and JSON) before the "
+            "least recently read are dropped", 2**20, 2**36),
     Setting("cold_wait_cap", int, 4, "callers allowed to wait on cold topics at once", 1, 4096, "no cap"),
     Setting("idle_safety_net", float, 900.0, "seconds an unread pooled topic is kept", 1, 604800, "off"),
     Setting("idle_sweep_tick", float, 60.0, "seconds between idle sweeps", 0.05, 3600),
@@ -113,6 +115,8 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("watchdog_threshold", int, 5000, "ms a ROS task may run before the worker is degraded", 50, 600000),
     Setting("graph_poll_tick", int, 100, "ms between checks of the ROS graph", 10, 10000),
     Setting("max_publishers", int, 64, "LRU cap on pooled publishers (PUT)", 1, 1024),
+    Setting("publish_match_wait", float, 1.0, "seconds a new publisher waits for the topic's "
+            "subscribers to match before it publishes", 0, 30),
     Setting("gateway_name", str, "sovd_gateway", "ROS node name prefix; the worker's node is <name>_sub"),
     # --- HTTP side ---
     Setting("bind", str, "127.0.0.1:8080", "HOST:PORT the HTTP server listens on"),

@@ -98,8 +98,13 @@ SCHEMAS: dict[str, Any] = {
                            data={**OBJ, "examples": [{"data": 50.0}]}),
     "PublishResponse": _obj(
         ["id", "data", "x-medkit"], id=STR, data=OBJ,
-        X_medkit=_obj(["ros2", "entity_id", "status"], ros2=_obj(["topic", "type"], topic=STR, type=STR),
-                      entity_id=ENTITY_ID, status={"const": "published"}),
+        X_medkit=_obj(["ros2", "entity_id", "status", "subscriber_count", "unmatched_subscriber_count"],
+                      ros2=_obj(["topic", "type"], topic=STR, type=STR),
+                      entity_id=ENTITY_ID, status={"const": "published"},
+                      subscriber_count={**INT, "description": "subscriptions the message went to"},
+                      unmatched_subscriber_count={**INT, "description": "subscribers in the graph it did not "
+                                                  "reach (another QoS or message-type version)"},
+                      warning={**STR, "description": "only when unmatched_subscriber_count > 0"}),
     ),
     "Health": _obj(
         ["status", "timestamp", "discovery", "x-medkit-data-provider", "x-medkit-subscription-executor"],
@@ -109,19 +114,21 @@ SCHEMAS: dict[str, Any] = {
         timestamp=INT, discovery=_obj(["mode", "strategy"], mode=STR, strategy=STR),
         X_medkit__data__provider=_obj(
             ["pool_size", "pool_cap", "pool_hits", "pool_misses", "evictions_total", "type_change_events",
-             "graph_events_received", "concurrent_cold_waits", "cold_wait_cap", "unsupported_type_count"],
+             "graph_events_received", "concurrent_cold_waits", "cold_wait_cap", "unsupported_type_count",
+             "undecodable_messages", "pool_bytes", "pool_bytes_cap"],
             **{k: INT for k in ("pool_size", "pool_cap", "pool_hits", "pool_misses", "evictions_total",
                                 "type_change_events", "graph_events_received", "concurrent_cold_waits",
-                                "cold_wait_cap", "unsupported_type_count")}),
+                                "cold_wait_cap", "unsupported_type_count", "undecodable_messages",
+                                "pool_bytes", "pool_bytes_cap")}),
         X_medkit__subscription__executor={
             **_obj(["worker_alive", "degraded", "queue_depth", "queue_max_depth_observed", "queue_dropped",
                     "tasks_completed", "tasks_failed", "last_task_latency_us", "max_task_latency_us",
-                    "current_task_age_ms", "watchdog_trips", "graph_events_received"],
+                    "current_task_age_ms", "watchdog_trips", "graph_events_received", "loop_errors"],
                    worker_alive={"type": "boolean"}, degraded={"type": "boolean"},
                    **{k: INT for k in ("queue_depth", "queue_max_depth_observed", "queue_dropped",
                                        "tasks_completed", "tasks_failed", "last_task_latency_us",
                                        "max_task_latency_us", "current_task_age_ms", "watchdog_trips",
-                                       "graph_events_received")}),
+                                       "graph_events_received", "loop_errors")}),
             "description": "While the ROS worker is down: worker_alive false, the last counters received "
                            "(or zeros)"},
     ),
@@ -149,6 +156,9 @@ RESPONSES: dict[str, Any] = {
                     "(`x-medkit-cold-wait-cap-exceeded`, parameters `topic`, `cold_wait_cap`, `entity_id`, "
                     "`topic_name`); retry after `Retry-After` seconds"),
     "NotResponding": "The ROS worker did not answer in time (`not-responding`)",
+    "BadGateway": ("The newest message on the topic cannot be decoded as its type (`vendor-error`, "
+                   "`x-medkit-message-undecodable`, parameters `topic`, `type`): its publisher may be "
+                   "built against another version of the message package"),
     "Error": "Error (`internal-error`, or `vendor-error` with a `vendor_code`)",
 }
 
@@ -172,8 +182,8 @@ def _resp(name: str) -> dict[str, str]:
 def _op(op_id: str, summary: str, ok: dict, *errors: str, **extra: Any) -> dict[str, Any]:
     responses = {"200": ok}
     for status in errors:
-        responses[status] = _resp({"400": "BadRequest", "404": "NotFound", "503": "Unavailable",
-                                   "504": "NotResponding"}.get(status, "Error"))
+        responses[status] = _resp({"400": "BadRequest", "404": "NotFound", "502": "BadGateway",
+                                   "503": "Unavailable", "504": "NotResponding"}.get(status, "Error"))
     responses["default"] = _resp("Error")
     return {"operationId": op_id, "summary": summary, "responses": responses, **extra}
 
@@ -217,7 +227,7 @@ def _entity_paths(collection: str) -> dict[str, Any]:
                                     _ok("DataListing"), "400", "404", "503", "504", parameters=[id_param])},
         base + "/data/{data_id}": {
             "get": _op(f"get_{kind}_data_item", f"Read one sample of a topic through a {kind}",
-                       _ok("DataSample"), "400", "404", "503", "504",
+                       _ok("DataSample"), "400", "404", "502", "503", "504",
                        parameters=[id_param, data_param, bytes_param]),
             "put": put_op,
         },

@@ -24,6 +24,7 @@ CODES: dict[str, tuple[int, str, str | None, int | None]] = {
     "subscribe-failed": (500, "vendor-error", "x-medkit-subscribe-failed", None),
     "publish-failed": (500, "vendor-error", "x-medkit-publish-failed", None),
     "internal": (500, "internal-error", None, None),
+    "message-undecodable": (502, "vendor-error", "x-medkit-message-undecodable", None),
     "cold-wait-cap-exceeded": (503, "vendor-error", "x-medkit-cold-wait-cap-exceeded", 1),
     "backpressure": (503, "vendor-error", "x-medkit-ros-worker-backpressure", 1),
     "shutdown": (503, "vendor-error", "x-medkit-gateway-shutdown", 2),

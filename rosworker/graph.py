@@ -56,7 +56,7 @@ class GraphMonitor:
         full = changed or now - self._last_full >= FULL_CHECK_EVERY
         if full:
             self._last_full = now
-        self.pool.check_graph(None, full)
+        self.pool.check_graph(full)
         if full and not changed and self._snapshot is not None \
                 and now - self._last_request < SNAPSHOT_RECHECK_FOR:
             # Endpoint changes that leave names and types alone (a node adds a

@@ -25,6 +25,7 @@ EXIT_CANNOT_BOOT = 3
 STATE_SAVE_EVERY = 0.25  # seconds; only written when it changed
 REWARM_FOR = 30.0    # seconds to keep trying to re-subscribe topics pooled before a restart
 REWARM_RETRY = 0.25
+LOCK_WAIT = 5.0      # seconds to wait for the runtime lock a dying predecessor may still hold
 # Discovery settles before the socket is bound: at least SETTLE_MIN, until the graph
 # has not changed for SETTLE_QUIET, at most SETTLE_MAX seconds.
 SETTLE_MIN, SETTLE_QUIET, SETTLE_MAX = 1.0, 0.5, 5.0
@@ -77,11 +78,12 @@ class Worker:
     def run(self) -> int:
         import zmq
 
-        from ipc.server import IpcServer, LockHeld, RuntimeLock
+        from ipc.server import LockHeld, RuntimeLock
 
         lock = RuntimeLock(self.cfg.runtime_dir)
         try:
-            lock.acquire()
+            # A predecessor that is being killed may hold the lock for a moment longer.
+            lock.acquire(wait=LOCK_WAIT)
         except LockHeld as exc:
             log.error("%s", exc)
             print(f"sovd-rosworker: {exc}", file=sys.stderr)
@@ -89,13 +91,15 @@ class Worker:
         signal.signal(signal.SIGTERM, self._on_signal)
         signal.signal(signal.SIGINT, self._on_signal)
         try:
-            return self._serve(zmq, IpcServer)
+            return self._serve(zmq)
         finally:
             lock.release()
 
-    def _serve(self, zmq, IpcServer) -> int:
+    def _serve(self, zmq) -> int:
         import rclpy
         from rclpy.node import Node
+
+        from ipc.server import ControlServer
 
         from .commands import Commands
         from .executor import RosExecutor
@@ -118,60 +122,64 @@ class Worker:
         stats = Stats(pool_cap=cfg.max_pool_size, cold_wait_cap=cfg.cold_wait_cap,
                       watchdog_threshold_ms=cfg.watchdog_threshold)
         zctx = zmq.Context()
-        executor = RosExecutor(context, zctx, stats, cfg.max_queue_depth)
-        pool = TopicPool(node, executor, stats, max_pool_size=cfg.max_pool_size,
-                         cold_wait_cap=cfg.cold_wait_cap, idle_safety_net=cfg.idle_safety_net)
-        state = RestartState(cfg.runtime_dir)
-        graph = GraphMonitor(node, pool, stats)
-        publishers = PublisherPool(node, executor, stats, cfg.max_publishers)
-        Commands(executor, pool, graph, publishers, sample_timeout=cfg.sample_timeout,
-                 debug=cfg.debug_commands)
-        server = IpcServer(zctx, cfg.runtime_dir, executor, stats, {
+        control = ControlServer(zctx, cfg.runtime_dir, stats, {
             "version": _version(), "node": node.get_fully_qualified_name(),
             "started_at": time.time_ns(), "domain_id": context.get_domain_id(),
         })
+        executor = RosExecutor(zctx, cfg.runtime_dir, stats, cfg.max_queue_depth, immediate=control.answer)
+        pool = TopicPool(node, executor, stats, max_pool_size=cfg.max_pool_size,
+                         cold_wait_cap=cfg.cold_wait_cap, idle_safety_net=cfg.idle_safety_net,
+                         max_pool_bytes=cfg.max_pool_bytes)
+        state = RestartState(cfg.runtime_dir)
+        graph = GraphMonitor(node, pool, stats)
+        publishers = PublisherPool(node, executor, stats, pool, cfg.max_publishers, cfg.idle_safety_net,
+                                   cfg.publish_match_wait)
+        Commands(executor, pool, graph, publishers, sample_timeout=cfg.sample_timeout,
+                 debug=cfg.debug_commands)
         self.executor = executor
         if self._signal is not None:
             executor.stop()
 
         def every(seconds: float, fn):
             def tick():
-                try:
-                    fn()
-                finally:
-                    executor.call_later(seconds, tick)
+                executor.call_later(seconds, tick)
+                fn()
             executor.call_later(seconds, tick)
 
         rewarm, known_nodes = state.load()
         self._settle_discovery(node, set(known_nodes))
-        graph.tick()
+        executor.guarded("the first graph check", graph.tick)
         every(cfg.graph_poll_tick / 1000, graph.tick)
         if cfg.idle_safety_net:
             every(cfg.idle_sweep_tick, pool.sweep_idle)
-        every(STATE_SAVE_EVERY, lambda: state.save(list(pool.entries), graph.nodes))
+            every(cfg.idle_sweep_tick, publishers.sweep_idle)
+        every(STATE_SAVE_EVERY, lambda: state.save(pool.restart_topics(), graph.nodes))
         if rewarm:
             self._rewarm(executor, pool, rewarm, time.monotonic() + REWARM_FOR)
 
         try:
-            server.start()
+            executor.bind()
+            control.start()
         except Exception as exc:
             log.error("cannot serve IPC on %s: %s", cfg.runtime_dir, exc)
+            executor.close()
             node.destroy_node()
-            rclpy.shutdown(context=context)
+            rclpy.try_shutdown(context=context)
+            zctx.destroy(linger=0)
             return EXIT_CANNOT_BOOT
         log.info("ROS worker ready: node %s, domain %s, socket %s", node.get_fully_qualified_name(),
                  context.get_domain_id(), cfg.runtime_dir)
         try:
             executor.run()
             # Stop taking work, wake every waiter, answer what is queued, release everything.
-            server.close_for_work()
+            executor.closing = True
             pool.closing = True
-            pool.shutdown()
-            executor.drain()
-            publishers.shutdown()
+            executor.guarded("the pool's shutdown", pool.shutdown)
+            executor.guarded("the publishers' shutdown", publishers.shutdown)
+            executor.linger()
         finally:
             executor.close()
-            server.finish()
+            control.finish()
             node.destroy_node()
             rclpy.try_shutdown(context=context)
             zctx.destroy(linger=0)
@@ -208,8 +216,17 @@ class Worker:
                  len(last[0]) if last else 0)
 
     def _rewarm(self, executor, pool, topics: list[str], until: float) -> None:
+        from ipc.errors import IpcError
+
         """Subscribe again to the topics pooled before a restart, as their publishers are discovered."""
-        pending = [t for t in topics if pool.subscribe(t)["status"] != "pooled"]
+        def pooled(topic: str) -> bool:
+            try:
+                return pool.subscribe(topic)["status"] == "pooled"
+            except IpcError as exc:
+                log.info("re-subscribing %s failed: %s", topic, exc.message)
+                return False
+
+        pending = [t for t in topics if not pooled(t)]
         if len(pending) < len(topics):
             log.info("re-subscribed %d topics pooled before the restart", len(topics) - len(pending))
         if pending and time.monotonic() < until and not executor.stopping:

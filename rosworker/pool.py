@@ -10,10 +10,24 @@ caller as a *waiter* until the message arrives, the entry is evicted, or
 its deadline passes.  At most ``cold_wait_cap`` callers wait at once; the
 rest are told to retry (503) at once.
 
+A message that cannot be decoded (bad CDR, or a robot built against another
+version of the message package) answers its readers ``message-undecodable``
+(502) naming the topic and type; it is counted, logged once per topic, and
+the topic is left out of the restart state, so a restarted worker does not
+subscribe to it again by itself.
+
+Memory is bounded twice: ``max_pool_size`` topics, and ``max_pool_bytes`` of
+kept messages (the raw message plus its JSON per byte-array mode).  Past the
+byte budget the cached JSON of the least recently read entries goes first,
+then whole entries.
+
+The gateway's own endpoints (its subscriptions here, its publishers for PUT)
+never count as a topic's publishers or subscribers.
+
 Evictions: graph change (no publisher left, or the type changed), LRU at
-the cap, idle sweep, manual (``evict``), shutdown.  Each wakes the entry's
-waiters (they get metadata_only) and destroys the subscription here, on the
-ROS thread.
+the cap (never an entry somebody waits on), the byte budget, idle sweep,
+manual (``evict``), shutdown.  Each wakes the entry's waiters (they get
+metadata_only) and destroys the subscription here, on the ROS thread.
 """
 
 from __future__ import annotations
@@ -23,7 +37,6 @@ import logging
 import time
 from typing import Any
 
-from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.serialization import deserialize_message
 
 from ipc.errors import IpcError
@@ -36,6 +49,7 @@ log = logging.getLogger("sovd.rosworker.pool")
 
 UNSUPPORTED_TYPES_CAP = 1024
 LAST_TYPES_CAP = 4096
+UNDECODABLE_CAP = 4096
 BYTES_MODES = ("array", "base64")
 
 
@@ -51,43 +65,61 @@ class Waiter:
 class Entry:
     """One pooled topic."""
 
-    __slots__ = ("topic", "type_name", "cls", "sub", "qos_key", "raw", "received_ns", "json",
-                 "waiters", "last_read", "matched", "publisher_count", "subscriber_count",
-                 "incompatible")
+    __slots__ = ("topic", "type_name", "cls", "sub", "profile", "raw", "received_ns", "json",
+                 "failure", "nbytes", "waiters", "last_read", "matched", "publisher_count",
+                 "subscriber_count")
 
     def __init__(self, topic: str, type_name: str, cls: type):
         self.topic = topic
         self.type_name = type_name
         self.cls = cls
         self.sub = None
-        self.qos_key: tuple | None = None
+        self.profile = None                    # the QoSProfile of ``sub``
         self.raw: bytes | None = None
         self.received_ns = 0
         self.json: dict[str, bytes] = {}
+        self.failure: IpcError | None = None   # the newest raw message could not be decoded
+        self.nbytes = 0                        # raw + cached JSON, counted in the byte budget
         self.waiters: list[Waiter] = []
         self.last_read = time.monotonic()
         self.matched = 0
         self.publisher_count = 0
         self.subscriber_count = 0
-        self.incompatible = False
 
 
 class TopicPool:
     def __init__(self, node, executor: RosExecutor, stats: Stats, *, max_pool_size: int,
-                 cold_wait_cap: int, idle_safety_net: float):
+                 cold_wait_cap: int, idle_safety_net: float, max_pool_bytes: int = 256 * 2**20):
         self.node = node
         self.executor = executor
         self.stats = stats
         self.max_pool_size = max_pool_size
+        self.max_pool_bytes = max_pool_bytes
         self.cold_wait_cap = cold_wait_cap
         self.idle_safety_net = idle_safety_net
+        self.own = (node.get_name(), node.get_namespace())
         self.entries: collections.OrderedDict[str, Entry] = collections.OrderedDict()
         self.cold: dict[str, Entry] = {}           # entries with waiters
         self.unsupported: collections.OrderedDict[str, None] = collections.OrderedDict()
         self.last_types: collections.OrderedDict[str, str] = collections.OrderedDict()
+        self.undecodable: collections.OrderedDict[str, str] = collections.OrderedDict()  # topic -> type
+        self.nbytes = 0
         self.closing = False
+        stats.pool_bytes_cap = max_pool_bytes
         executor.cold_entries = lambda: list(self.cold.values())
         executor.on_ready = self._on_ready
+
+    # ---- the graph, without the gateway's own endpoints --------------------------------
+    def _foreign(self, infos: list) -> list:
+        own_name, own_ns = self.own
+        return [i for i in infos if i.node_name != own_name or i.node_namespace != own_ns]
+
+    def publishers(self, topic: str) -> list:
+        """``TopicEndpointInfo`` of the topic's publishers, the gateway's own left out."""
+        return self._foreign(self.node.get_publishers_info_by_topic(topic))
+
+    def subscriber_count(self, topic: str) -> int:
+        return len(self._foreign(self.node.get_subscriptions_info_by_topic(topic)))
 
     # ---- reads --------------------------------------------------------------------------
     def sample(self, task: Task, topic: str, timeout: float, mode: str) -> None:
@@ -119,6 +151,15 @@ class TopicPool:
                 return {"topic": topic, "type": None, "status": reason}
         return {"topic": topic, "type": entry.type_name, "status": "pooled"}
 
+    def own_subscription_qos(self, topic: str):
+        """The QoSProfile of the pool's own subscription to ``topic``, or None."""
+        entry = self.entries.get(topic)
+        return entry.profile if entry is not None and entry.sub is not None else None
+
+    def restart_topics(self) -> list[str]:
+        """Pooled topics worth subscribing to again after a restart: not the undecodable ones."""
+        return [t for t, e in self.entries.items() if e.failure is None and t not in self.undecodable]
+
     def _park(self, task: Task, entry: Entry, mode: str, timeout: float) -> None:
         cap = self.cold_wait_cap
         if cap and self.stats.concurrent_cold_waits >= cap:
@@ -147,48 +188,82 @@ class TopicPool:
             self.cold.pop(entry.topic, None)
 
     def _on_ready(self, entry: Entry) -> None:
+        """A look at a cold entry (executor, every round while it has waiters)."""
+        if entry.sub is None:
+            return
         self._take(entry)
         if entry.raw is None:
             return
         for waiter in list(entry.waiters):
             self._release(entry, waiter)
-            waiter.task.reply(self._data(entry, waiter.mode))
+            try:
+                waiter.task.reply(self._data(entry, waiter.mode))
+            except IpcError as exc:
+                waiter.task.fail(exc)
 
     def _take(self, entry: Entry) -> None:
         taken = entry.sub.handle.take_message(entry.cls, True)
         if taken is not None:
             raw, info = taken
+            self._account(entry, -entry.nbytes)
             entry.raw = raw
             entry.received_ns = info.get("received_timestamp") or time.time_ns()
             entry.json.clear()
+            entry.failure = None
+            self._account(entry, len(raw))
+            self._enforce_budget(entry)
 
     # ---- answers ------------------------------------------------------------------------
     def _data(self, entry: Entry, mode: str) -> dict[str, Any]:
         text = entry.json.get(mode)
         if text is None:
-            msg = deserialize_message(entry.raw, entry.cls)
-            text = convert.to_json(msg, mode)
+            if entry.failure is not None:
+                raise entry.failure
+            text = self._convert(entry, mode)
             entry.json[mode] = text
+            self._account(entry, len(text))
+            self._enforce_budget(entry)
         return {"topic": entry.topic, "type": entry.type_name, "status": "data", "data_json": text,
                 "timestamp": entry.received_ns, "publisher_count": entry.publisher_count,
                 "subscriber_count": entry.subscriber_count}
 
-    def _metadata(self, topic: str, entry: Entry | None, reason: str, type_name: str | None = None,
-                  counts: tuple[int, int] | None = None) -> dict[str, Any]:
+    def _convert(self, entry: Entry, mode: str) -> bytes:
+        try:
+            return convert.to_json(deserialize_message(entry.raw, entry.cls), mode)
+        except Exception as exc:  # rclpy raises several types for bad CDR; convert its own
+            self.stats.undecodable_messages += 1
+            if entry.topic not in self.undecodable:
+                log.warning("a message on %s [%s] cannot be decoded (%s: %s); its readers get 502 "
+                            "until a decodable message arrives", entry.topic, entry.type_name,
+                            type(exc).__name__, str(exc)[:200])
+            self.undecodable[entry.topic] = entry.type_name
+            self.undecodable.move_to_end(entry.topic)
+            if len(self.undecodable) > UNDECODABLE_CAP:
+                self.undecodable.popitem(last=False)
+            entry.failure = IpcError(
+                "message-undecodable",
+                f"The newest message on {entry.topic} cannot be decoded as {entry.type_name}: the "
+                "publisher may be built against another version of the message package",
+                {"topic": entry.topic, "type": entry.type_name},
+            )
+            raise entry.failure from None
+
+    def _metadata(self, topic: str, entry: Entry | None, reason: str) -> dict[str, Any]:
         if entry is not None:
             type_name = entry.type_name
             counts = (entry.publisher_count, entry.subscriber_count)
-        elif counts is None:
-            counts = (self.node.count_publishers(topic), self.node.count_subscribers(topic))
+        else:
+            type_name = None
+            counts = (len(self.publishers(topic)), self.subscriber_count(topic))
         return {"topic": topic, "type": type_name, "status": "metadata_only", "data_json": b"{}",
                 "timestamp": time.time_ns(), "publisher_count": counts[0],
                 "subscriber_count": counts[1], "reason": reason}
 
     # ---- creation -----------------------------------------------------------------------
     def _create(self, topic: str) -> tuple[Entry | None, str]:
-        infos = self.node.get_publishers_info_by_topic(topic)
+        infos = self.publishers(topic)
         if not infos:
-            in_graph = self.node.count_subscribers(topic) > 0
+            in_graph = self.subscriber_count(topic) > 0 or bool(self.node.get_publishers_info_by_topic(topic))
             return None, ("no-publishers" if in_graph else "not-in-graph")
         types = collections.Counter(i.topic_type for i in infos)
         type_name = types.most_common(1)[0][0]
@@ -205,35 +280,27 @@ class TopicPool:
         self._remember_type(topic, type_name)
         entry = Entry(topic, type_name, cls)
         entry.publisher_count = len(infos)
-        entry.subscriber_count = self.node.count_subscribers(topic)
-        self._subscribe(entry, [i for i in infos if i.topic_type == type_name])
+        entry.subscriber_count = self.subscriber_count(topic)
+        same_type = [i for i in infos if i.topic_type == type_name]
+        entry.sub, entry.profile = self._subscribe(entry, same_type)
+        entry.matched = entry.sub.handle.get_publisher_count()
         if len(self.entries) >= self.max_pool_size:
-            _, oldest = next(iter(self.entries.items()))
-            self.evict(oldest, "lru")
+            self._evict_lru("lru")
         self.entries[topic] = entry
         self.stats.pool_size = len(self.entries)
         return entry, "pooled"
 
-    def _subscribe(self, entry: Entry, infos: list) -> None:
+    def _subscribe(self, entry: Entry, infos: list) -> tuple[Any, Any]:
+        """A new subscription for ``entry`` with QoS matched to ``infos``; raises IpcError."""
         profile = qos.match_qos(infos)
-
-        def incompatible(_event, entry=entry):
-            entry.incompatible = True
-
         try:
-            entry.sub = self.node.create_subscription(
-                entry.cls, entry.topic, _never_called, profile,
-                event_callbacks=SubscriptionEventCallbacks(incompatible_qos=incompatible,
-                                                           use_default_callbacks=False),
-            )
+            sub = self.node.create_subscription(entry.cls, entry.topic, _never_called, profile)
         except Exception as exc:
             log.warning("subscribing to %s failed: %s", entry.topic, exc)
             raise IpcError("subscribe-failed", f"Could not subscribe to {entry.topic}: {exc}",
                            {"topic": entry.topic}) from None
-        entry.qos_key = qos.key(profile)
-        entry.matched = entry.sub.handle.get_publisher_count()
-        entry.incompatible = False
         log.debug("subscribed %s [%s] %s", entry.topic, entry.type_name, qos.describe(profile))
+        return sub, profile
 
     def _mark_unsupported(self, type_name: str) -> None:
         if type_name not in self.unsupported:
@@ -250,10 +317,43 @@ class TopicPool:
         if len(self.last_types) > LAST_TYPES_CAP:
             self.last_types.popitem(last=False)
 
+    # ---- the byte budget ------------------------------------------------------------------
+    def _account(self, entry: Entry, delta: int) -> None:
+        entry.nbytes += delta
+        if self.entries.get(entry.topic) is entry:
+            self.nbytes += delta
+            self.stats.pool_bytes = self.nbytes
+
+    def _enforce_budget(self, keep: Entry) -> None:
+        """Past ``max_pool_bytes``: drop cached JSON, then whole entries, least recently read first."""
+        if self.nbytes <= self.max_pool_bytes:
+            return
+        for entry in list(self.entries.values()):
+            if self.nbytes <= self.max_pool_bytes:
+                return
+            if entry is not keep and entry.json:
+                self._account(entry, -sum(map(len, entry.json.values())))
+                entry.json.clear()
+                self.stats.pool_json_drops += 1
+        for entry in list(self.entries.values()):
+            if self.nbytes <= self.max_pool_bytes:
+                return
+            if entry is not keep and not entry.waiters:
+                self.evict(entry, "bytes")
+
     # ---- evictions ----------------------------------------------------------------------
+    def _evict_lru(self, reason: str) -> None:
+        """Evict the least recently read entry that nobody waits on (waiters are never cut short)."""
+        for entry in self.entries.values():
+            if not entry.waiters:
+                self.evict(entry, reason)
+                return
+        # Every entry has waiters: the pool exceeds its cap by at most the cold waiters, briefly.
+
     def evict(self, entry: Entry, reason: str) -> None:
         if self.entries.get(entry.topic) is not entry:
             return
+        self._account(entry, -entry.nbytes)
         del self.entries[entry.topic]
         self.stats.pool_size = len(self.entries)
         self.stats.evictions_total += 1
@@ -262,16 +362,16 @@ class TopicPool:
             self._release(entry, waiter)
             waiter.task.reply(self._metadata(entry.topic, entry,
                                              "shutdown" if reason == "shutdown" else "evicted"))
-        self._destroy(entry)
+        self._destroy(entry.sub, entry.topic)
+        entry.sub = None
         log.debug("evicted %s (%s)", entry.topic, reason)
 
-    def _destroy(self, entry: Entry) -> None:
-        if entry.sub is not None:
+    def _destroy(self, sub, topic: str) -> None:
+        if sub is not None:
             try:
-                self.node.destroy_subscription(entry.sub)
+                self.node.destroy_subscription(sub)
             except Exception:
-                log.exception("destroying the subscription of %s failed", entry.topic)
-            entry.sub = None
+                log.exception("destroying the subscription of %s failed", topic)
 
     def evict_topic(self, topic: str) -> bool:
         entry = self.entries.get(topic)
@@ -287,42 +387,50 @@ class TopicPool:
         for entry in [e for e in self.entries.values() if e.last_read < limit and not e.waiters]:
             self.evict(entry, "idle")
 
-    def check_graph(self, publisher_types: dict[str, collections.Counter] | None, full: bool) -> None:
-        """Re-check pooled topics against the graph.
+    def check_graph(self, full: bool) -> None:
+        """Re-check pooled topics against the graph (each entry on its own: one failure is contained).
 
         ``full``: every entry is re-checked (the graph changed, or the periodic
-        sweep); otherwise only entries whose matched-publisher count changed or
-        that saw an incompatible-QoS event.
+        sweep); otherwise only entries whose matched-publisher count changed.
         """
         for entry in list(self.entries.values()):
-            matched = entry.sub.handle.get_publisher_count()
-            if not (full or matched != entry.matched or entry.incompatible):
-                continue
-            entry.matched = matched
-            infos = self.node.get_publishers_info_by_topic(entry.topic)
-            if not infos:
-                self.evict(entry, "graph")
-                continue
-            types = {i.topic_type for i in infos}
-            if entry.type_name not in types:
-                self.stats.type_change_events += 1
-                self._remember_type(entry.topic, next(iter(types)))
-                self.evict(entry, "type_change")
-                continue
-            entry.publisher_count = len(infos)
-            entry.subscriber_count = max(0, self.node.count_subscribers(entry.topic) - 1)
-            same_type = [i for i in infos if i.topic_type == entry.type_name]
-            wanted = qos.key(qos.match_qos(same_type))
-            if wanted != entry.qos_key or entry.incompatible:
-                self._rebuild(entry, same_type)
+            self.executor.guarded(f"the graph check of {entry.topic}", self._check_entry, entry, full)
+
+    def _check_entry(self, entry: Entry, full: bool) -> None:
+        if entry.sub is None:  # evicted meanwhile
+            return
+        matched = entry.sub.handle.get_publisher_count()
+        if not (full or matched != entry.matched):
+            return
+        entry.matched = matched
+        infos = self.publishers(entry.topic)
+        if not infos:
+            self.evict(entry, "graph")
+            return
+        types = {i.topic_type for i in infos}
+        if entry.type_name not in types:
+            self.stats.type_change_events += 1
+            self._remember_type(entry.topic, next(iter(types)))
+            self.evict(entry, "type_change")
+            return
+        entry.publisher_count = len(infos)
+        entry.subscriber_count = self.subscriber_count(entry.topic)
+        same_type = [i for i in infos if i.topic_type == entry.type_name]
+        if qos.key(qos.match_qos(same_type)) != qos.key(entry.profile):
+            self._rebuild(entry, same_type)
 
     def _rebuild(self, entry: Entry, infos: list) -> None:
-        """Recreate the subscription with QoS matched to the current publishers."""
-        log.info("re-subscribing %s with QoS matched to its publishers%s", entry.topic,
-                 " (incompatible QoS reported)" if entry.incompatible else "")
+        """Recreate the subscription with QoS matched to the current publishers.
+
+        The new subscription is made before the old one goes: if it cannot be made,
+        the entry keeps serving from the old one (and the next check tries again).
+        """
+        log.info("re-subscribing %s with QoS matched to its publishers", entry.topic)
+        sub, profile = self._subscribe(entry, infos)
+        old, entry.sub, entry.profile = entry.sub, sub, profile
+        entry.matched = sub.handle.get_publisher_count()
         self.stats.evictions["qos_rebuild"] += 1
-        self._destroy(entry)
-        self._subscribe(entry, infos)
+        self._destroy(old, entry.topic)
 
     def shutdown(self) -> None:
         for entry in list(self.entries.values()):

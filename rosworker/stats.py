@@ -28,6 +28,9 @@ class Stats:
     graph_events_received: int = 0
     concurrent_cold_waits: int = 0
     unsupported_type_count: int = 0
+    undecodable_messages: int = 0
+    pool_bytes: int = 0
+    pool_bytes_cap: int = 0
     # x-medkit-subscription-executor
     degraded: bool = False
     queue_depth: int = 0
@@ -38,10 +41,15 @@ class Stats:
     last_task_latency_us: int = 0
     max_task_latency_us: int = 0
     watchdog_trips: int = 0
+    loop_errors: int = 0
     # extra detail, reported under "x-medkit-details"
     evictions: dict = field(default_factory=lambda: {
         "graph": 0, "type_change": 0, "lru": 0, "idle": 0, "qos_rebuild": 0, "manual": 0, "shutdown": 0,
+        "bytes": 0,
     })
+    pool_json_drops: int = 0
+    publishers_expired: int = 0
+    publishes_waiting: int = 0
     publishers: int = 0
     publishes_total: int = 0
     ipc_dropped_frames: int = 0
@@ -96,6 +104,9 @@ class Stats:
                 "concurrent_cold_waits": self.concurrent_cold_waits,
                 "cold_wait_cap": self.cold_wait_cap,
                 "unsupported_type_count": self.unsupported_type_count,
+                "undecodable_messages": self.undecodable_messages,
+                "pool_bytes": self.pool_bytes,
+                "pool_bytes_cap": self.pool_bytes_cap,
             },
             "executor": {
                 "worker_alive": True,
@@ -110,11 +121,15 @@ class Stats:
                 "current_task_age_ms": self.current_task_age_ms(),
                 "watchdog_trips": self.watchdog_trips,
                 "graph_events_received": self.graph_events_received,
+                "loop_errors": self.loop_errors,
             },
             "details": {
                 "evictions": dict(self.evictions),
                 "publishers": self.publishers,
                 "publishes_total": self.publishes_total,
+                "publishers_expired": self.publishers_expired,
+                "publishes_waiting": self.publishes_waiting,
+                "pool_json_drops": self.pool_json_drops,
                 "ipc_dropped_frames": self.ipc_dropped_frames,
                 "commands": {name: {"count": n, "time_us": t} for name, (n, t) in self.commands.items()},
             },

@@ -36,7 +36,8 @@ def test_publish(client, fw):
     assert r.status_code == 200, r.data
     assert r.get_json() == {"id": "/body/lights/cmd", "data": {"data": True},
                             "x-medkit": {"ros2": {"topic": "/body/lights/cmd", "type": "std_msgs/msg/Bool"},
-                                         "entity_id": "controller", "status": "published"}}
+                                         "entity_id": "controller", "status": "published",
+                                         "subscriber_count": 1, "unmatched_subscriber_count": 0}}
     assert fw.calls("publish") == [{"topic": "/body/lights/cmd", "type": "std_msgs/msg/Bool",
                                     "data": {"data": True}}]
 

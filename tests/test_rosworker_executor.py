@@ -13,6 +13,7 @@ import zmq
 
 from ipc import protocol
 from ipc.errors import IpcError
+from tests.support.gateway import Gateway
 from tests.support.procs import RosNode, poll_until, publisher
 from tests.support.rosworker import RosWorker
 
@@ -245,3 +246,110 @@ def test_hostile_ipc_frames_get_an_error_or_are_dropped_and_the_worker_keeps_ser
         sock.close()
         ctx.term()
         worker.stop()
+
+
+def test_ping_and_stats_never_wait_behind_a_queue_of_short_tasks():
+    """120 tasks of 15 ms each once kept ``stats`` waiting 1.8 s: /health said the worker was dead.
+
+    Here 400 tasks of 4 ms: each far below any take-over threshold, 1.6 s together."""
+    gw = Gateway("--debug-commands", "--max-queue-depth", "1000", "--log-level", "warning")
+    ctx = zmq.Context()
+    flood = ctx.socket(zmq.DEALER)
+    flood.setsockopt(zmq.LINGER, 0)
+    flood.connect(protocol.endpoint(gw.runtime_dir))
+    client = gw.rosworker()
+    try:
+        for rid in range(400):
+            flood.send(msgpack.packb({"v": 1, "id": rid, "cmd": "debug_sleep",
+                                      "args": {"seconds": 0.004}, "deadline_ms": 60000}))
+        poll_until(lambda: client.call("stats", timeout=5)["executor"]["queue_depth"] >= 200, 10,
+                   message="the queue filled")
+        started = time.monotonic()
+        health = gw.get("/health").json()
+        took = time.monotonic() - started
+        assert health["x-medkit-subscription-executor"]["worker_alive"] is True
+        assert health["x-medkit-subscription-executor"]["queue_depth"] > 0   # answered mid-queue
+        assert took < 1.0, f"/health took {took:.3f} s behind the queue"
+        started = time.monotonic()
+        assert client.call("ping", timeout=0.5)["pid"] == gw.rosworker_pid()
+        assert time.monotonic() - started < 0.5
+        replies = set()
+        while len(replies) < 400 and flood.poll(10000):
+            replies.add(protocol.unpack(flood.recv(), protocol.MAX_REPLY_FRAME)["id"])
+        assert replies == set(range(400))   # and every queued task was served
+    finally:
+        client.close()
+        flood.close()
+        ctx.term()
+        gw.stop()
+
+
+class _Infos:
+    """Stand-ins for rclpy's TopicEndpointInfo and its node: only what the pool reads."""
+
+    def __init__(self, reliability):
+        from rclpy.qos import QoSProfile
+
+        self.node_name, self.node_namespace = "robot", "/"
+        self.topic_type = "std_msgs/msg/String"
+        self.qos_profile = QoSProfile(depth=1, reliability=reliability)
+
+
+class _FailingNode:
+    def __init__(self):
+        self.infos = []
+        self.created, self.destroyed = [], []
+        self.fail = False
+
+    def get_name(self):
+        return "gw_sub"
+
+    def get_namespace(self):
+        return "/"
+
+    def get_publishers_info_by_topic(self, topic):
+        return list(self.infos)
+
+    def get_subscriptions_info_by_topic(self, topic):
+        return []
+
+    def create_subscription(self, cls, topic, callback, profile):
+        if self.fail:
+            raise RuntimeError("rmw refused the subscription")
+        sub = type("Sub", (), {"handle": type("H", (), {"get_publisher_count": lambda self: 1})()})()
+        self.created.append(sub)
+        return sub
+
+    def destroy_subscription(self, sub):
+        self.destroyed.append(sub)
+
+
+def test_a_failed_qos_rebuild_keeps_the_old_subscription(tmp_path):
+    """A unit test with a fake node: the new subscription is made before the old one goes."""
+    from rclpy.qos import ReliabilityPolicy
+
+    from rosworker.executor import RosExecutor
+    from rosworker.pool import TopicPool
+    from rosworker.stats import Stats
+
+    stats = Stats(pool_cap=4, cold_wait_cap=4, watchdog_threshold_ms=5000)
+    ctx = zmq.Context()
+    executor = RosExecutor(ctx, str(tmp_path), stats, 16)
+    node = _FailingNode()
+    pool = TopicPool(node, executor, stats, max_pool_size=4, cold_wait_cap=4, idle_safety_net=0)
+    try:
+        node.infos = [_Infos(ReliabilityPolicy.RELIABLE)]
+        assert pool.subscribe("/a")["status"] == "pooled"
+        old = pool.entries["/a"].sub
+        node.infos.append(_Infos(ReliabilityPolicy.BEST_EFFORT))  # the wanted QoS changes
+        node.fail = True
+        pool.check_graph(full=True)
+        assert pool.entries["/a"].sub is old and old not in node.destroyed
+        assert stats.loop_errors == 1                               # contained and counted
+        node.fail = False
+        pool.check_graph(full=True)                                 # the next check succeeds
+        assert pool.entries["/a"].sub is not old and old in node.destroyed
+        assert stats.evictions["qos_rebuild"] == 1
+    finally:
+        executor.close()
+        ctx.term()

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import json
 import os
 import threading
+import time
 import uuid
 
 import pytest
 
+from tests.support.gateway import Gateway
 from tests.support.procs import RosNode, poll_until, publisher
 from tests.support.rosworker import SHADOW, RosWorker
 
@@ -238,3 +241,126 @@ def test_eviction_wakes_the_waiters_of_the_entry(nodes):
         assert worker.stats()["data_provider"]["concurrent_cold_waits"] == 0
     finally:
         worker.stop()
+
+
+# ---- hardening: what one bad message, a busy pool or the gateway's own publisher must not do ----
+
+# A std_msgs/String whose CDR says 1000 bytes follow, and then only "hi".
+BAD_STRING_CDR = "00010000" + "e8030000" + "6869"
+
+
+@pytest.fixture
+def gateway():
+    started: list = []
+
+    def start(*args: str) -> Gateway:
+        gw = Gateway(*args, "--log-level", "warning")
+        started.append(gw)
+        return gw
+
+    yield start
+    for gw in started:
+        gw.stop()
+
+
+def test_an_undecodable_message_answers_502_and_the_ros_worker_lives_on(nodes, gateway):
+    bad, good = unique("bad"), unique("good")
+    nodes.append(RosNode({"node": "garbler", "publish": [
+        {"topic": bad, "type": "std_msgs/msg/String", "rate": 10, "raw": BAD_STRING_CDR}]}))
+    nodes.append(publisher("fine", good, "std_msgs/msg/String", {"data": "ok"}))
+    gw = gateway()
+    host = gw.host()
+    pid = gw.rosworker_pid()
+    poll_until(lambda: gw.get(f"/components/{host}/data{good}").json()["x-medkit"]["status"] == "data",
+               15, message="the good topic")
+    for _ in range(5):  # the cold read, then warm reads of the same failing topic
+        r = gw.get(f"/components/{host}/data{bad}")
+        if r.status_code == 200 and r.json()["x-medkit"].get("reason") in ("timeout", "no-publishers",
+                                                                            "not-in-graph"):
+            continue  # not discovered yet
+        assert r.status_code == 502, r.text
+        body = r.json()
+        assert body["error_code"] == "vendor-error"
+        assert body["vendor_code"] == "x-medkit-message-undecodable"
+        assert body["parameters"]["topic"] == bad
+        assert body["parameters"]["type"] == "std_msgs/msg/String"
+        assert bad in body["message"]
+    assert r.status_code == 502
+    assert gw.rosworker_pid() == pid                      # never restarted
+    assert gw.get(f"/components/{host}/data{good}").status_code == 200
+    health = gw.get("/health").json()
+    assert health["x-medkit-subscription-executor"]["worker_alive"] is True
+    assert health["x-medkit-data-provider"]["undecodable_messages"] >= 1
+    # The failing topic is not in the restart state: a restarted worker leaves it alone.
+    state = os.path.join(gw.runtime_dir, "pool.json")
+    poll_until(lambda: good in json.load(open(state))["topics"], 5, message="restart state saved")
+    assert bad not in json.load(open(state))["topics"]
+    assert not any("Traceback" in line for line in gw.output)
+
+
+def test_lru_eviction_never_cuts_a_cold_waiter_short(nodes, gateway):
+    quiet, warm = unique("quiet"), unique("warm")
+    nodes.append(RosNode({"node": "quiet", "publish": [{"topic": quiet, "type": "std_msgs/msg/String",
+                                                        "rate": 0.001}]}))
+    nodes.append(publisher("warm", warm, "std_msgs/msg/String", {"data": "w"}, rate=20))
+    gw = gateway("--max-pool-size", "1", "--sample-timeout", "3")
+    host = gw.host()
+    poll_until(lambda: gw.get(f"/components/{host}/data{warm}").json()["x-medkit"]["status"] == "data",
+               15, message="the warm topic")
+    poll_until(lambda: gw.get(f"/components/{host}/data{quiet}").json()["x-medkit"].get("reason")
+               == "timeout", 20, message="the quiet topic discovered (a read that times out)")
+    answers: list = []
+    waiter = threading.Thread(target=lambda: answers.append(gw.get(f"/components/{host}/data{quiet}")))
+    waiter.start()
+    poll_until(lambda: gw.get("/health").json()["x-medkit-data-provider"]["concurrent_cold_waits"] == 1,
+               5, message="a cold waiter")
+    # The pool is full (cap 1) with the waited-on entry: reading another topic must not evict it.
+    assert gw.get(f"/components/{host}/data{warm}").json()["x-medkit"]["status"] == "data"
+    waiter.join(15)
+    assert answers[0].json()["x-medkit"]["reason"] == "timeout"   # not "evicted"
+
+
+def test_the_gateways_own_publisher_does_not_keep_a_topic_alive(nodes, gateway):
+    topic = unique("scan")
+    robot = publisher("robot", topic, "std_msgs/msg/String", {"data": "from the robot"})
+    nodes.append(robot)
+    gw = gateway("--allow-publish")
+    host = gw.host()
+    url = f"/components/{host}/data{topic}"
+    poll_until(lambda: gw.get(url).json()["x-medkit"]["status"] == "data", 15, message="robot data")
+    r = gw.put(url, json={"type": "std_msgs/msg/String", "data": {"data": "from the gateway"}})
+    assert r.status_code == 200, r.text
+    robot.stop()
+    gone = poll_until(lambda: (lambda b: b if b["x-medkit"]["status"] == "metadata_only" else None)(
+        gw.get(url).json()), 15, message="the robot's publisher gone")
+    assert gone["x-medkit"]["publisher_count"] == 0
+    assert gone["x-medkit"]["reason"] in ("no-publishers", "evicted")
+    # Only the gateway publishes there now: a read answers no-publishers at once.
+    started = time.monotonic()
+    again = gw.get(url).json()["x-medkit"]
+    assert again["status"] == "metadata_only" and again["reason"] == "no-publishers"
+    assert time.monotonic() - started < 0.9  # not the 1 s sample timeout
+
+
+def test_the_byte_budget_bounds_the_pool_with_image_topics(nodes, gateway):
+    topics = [unique(f"camera{i}") for i in range(4)]
+    image = {"height": 480, "width": 640, "encoding": "rgb8", "step": 1920,
+             "data": {"__fill__": [7, 640 * 480 * 3]}}
+    nodes.append(RosNode({"node": "cameras", "publish": [
+        {"topic": t, "type": "sensor_msgs/msg/Image", "rate": 2, "value": image} for t in topics]},
+        timeout=60))
+    cap = 6 * 2**20   # room for one image with its JSON (~4.2 MB), not for four
+    gw = gateway("--max-pool-bytes", str(cap), "--sample-timeout", "3")
+    host = gw.host()
+    for t in topics:
+        poll_until(lambda t=t: gw.get(f"/components/{host}/data{t}").json()["x-medkit"]["status"] == "data",
+                   20, message=f"image on {t}")
+        provider = gw.get("/health").json()["x-medkit-data-provider"]
+        assert provider["pool_bytes_cap"] == cap
+        assert 0 < provider["pool_bytes"] <= cap
+    client = gw.rosworker()
+    try:
+        details = client.call("stats")["details"]
+    finally:
+        client.close()
+    assert details["evictions"]["bytes"] + details["pool_json_drops"] > 0

@@ -116,7 +116,7 @@ def write(collection: str, entity_id: str, data_id: str):
     timeout = config().ipc_timeout
     try:
         # Not idempotent: sent once, never again after a timeout.
-        rosclient.get().call("publish", {"topic": topic, "type": type_name, "data": data}, timeout)
+        result = rosclient.get().call("publish", {"topic": topic, "type": type_name, "data": data}, timeout)
     except IpcError as exc:
         params = {"entity_id": entity.id, "topic_name": data_id[:300]}
         if exc.code == "deadline-exceeded":
@@ -124,12 +124,16 @@ def write(collection: str, entity_id: str, data_id: str):
                 f"The ROS worker did not confirm the publish within {timeout:g} s; "
                 "the message may or may not have been published")) from None
         raise ApiError.from_ipc(exc, params) from None
-    return json_response({
-        "id": topic,
-        "data": data,
-        "x-medkit": {"ros2": {"topic": topic, "type": type_name}, "entity_id": entity.id,
-                     "status": "published"},
-    })
+    ext: dict[str, Any] = {"ros2": {"topic": topic, "type": type_name}, "entity_id": entity.id,
+                           "status": "published"}
+    for key in ("subscriber_count", "unmatched_subscriber_count"):
+        value = result.get(key)
+        ext[key] = value if isinstance(value, int) and not isinstance(value, bool) else 0
+    if ext["unmatched_subscriber_count"]:
+        ext["warning"] = (f"{ext['unmatched_subscriber_count']} subscriber(s) of {topic} did not receive "
+                          "the message: their QoS or message-type version does not match, or they "
+                          "were not discovered in time")
+    return json_response({"id": topic, "data": data, "x-medkit": ext})
 
 
 @bp.get(ENTITY + "/data-categories")

@@ -23,11 +23,12 @@ SOVD_VERSION = "1.0.0"
 DATA_PROVIDER_KEYS = (
     "pool_size", "pool_cap", "pool_hits", "pool_misses", "evictions_total", "type_change_events",
     "graph_events_received", "concurrent_cold_waits", "cold_wait_cap", "unsupported_type_count",
+    "undecodable_messages", "pool_bytes", "pool_bytes_cap",
 )
 EXECUTOR_KEYS = (
     "worker_alive", "degraded", "queue_depth", "queue_max_depth_observed", "queue_dropped",
     "tasks_completed", "tasks_failed", "last_task_latency_us", "max_task_latency_us",
-    "current_task_age_ms", "watchdog_trips", "graph_events_received",
+    "current_task_age_ms", "watchdog_trips", "graph_events_received", "loop_errors",
 )
 
 
@@ -100,7 +101,8 @@ def health():
 def _sections(stats: dict[str, Any] | None) -> tuple[dict[str, Any], dict[str, Any]]:
     cfg = config()
     provider: dict[str, Any] = {k: 0 for k in DATA_PROVIDER_KEYS}
-    provider.update(pool_cap=cfg.max_pool_size, cold_wait_cap=cfg.cold_wait_cap)
+    provider.update(pool_cap=cfg.max_pool_size, cold_wait_cap=cfg.cold_wait_cap,
+                    pool_bytes_cap=cfg.max_pool_bytes)
     executor: dict[str, Any] = {k: 0 for k in EXECUTOR_KEYS}
     executor.update(worker_alive=False, degraded=False)
     if stats:

@@ -46,6 +46,22 @@ class Gateway(Proc):
         r = requests.get(self.api + "/health", timeout=2)
         return r.status_code == 200 and r.json()["x-medkit-subscription-executor"]["worker_alive"]
 
+    def host(self) -> str:
+        """The id of the host component (every topic can be read through it)."""
+        return self.get("/components").json()["items"][0]["id"]
+
+    def rosworker(self):
+        """A client of this gateway's ROS worker socket (close it when done)."""
+        from ipc.client import RosWorkerClient
+
+        return RosWorkerClient.for_runtime_dir(self.runtime_dir)
+
+    def rosworker_pid(self) -> int:
+        import psutil
+
+        return next(c.pid for c in psutil.Process(self.pid).children()
+                    if "sovd-rosworker" in " ".join(c.cmdline()))
+
     def get(self, path: str, **kw) -> requests.Response:
         kw.setdefault("timeout", 15)
         return requests.get(self.api + path, **kw)

@@ -6,17 +6,21 @@ Run as ``python -m tests.support.rospub '<json spec>'``::
      "publish": [{"topic": "temperature", "type": "sensor_msgs/msg/Temperature",
                   "rate": 10, "value": {"temperature": 93.5}, "counter": "variance",
                   "reliability": "reliable", "durability": "volatile", "depth": 10,
-                  "once": false}],
-     "subscribe": [{"topic": "cmd", "type": "std_msgs/msg/Float32", "echo": true}]}
+                  "once": false, "raw": null}],
+     "subscribe": [{"topic": "cmd", "type": "std_msgs/msg/Float32", "echo": true,
+                    "reliability": "reliable", "durability": "transient_local"}]}
 
 Prints ``READY`` once every entity exists; with ``echo``, prints each received
 message as one JSON line ``{"topic":..., "data": {...}}``.  ``counter`` names a
 numeric field that is incremented on every publish so tests can tell samples
-apart.  SIGTERM destroys the node cleanly so that it leaves the graph at once.
+apart.  ``raw`` (hex) publishes those bytes as the serialized message instead,
+for messages that do not deserialize.  SIGTERM destroys the node cleanly so
+that it leaves the graph at once.
 """
 
 from __future__ import annotations
 
+import array
 import importlib
 import json
 import sys
@@ -30,16 +34,20 @@ def _load(type_name: str):
 
 
 def _value(value):
-    """JSON cannot carry ``bytes``: ``{"__bytes__": [1, 2]}`` becomes ``[b"\\x01", b"\\x02"]``."""
+    """JSON cannot carry ``bytes``: ``{"__bytes__": [1, 2]}`` becomes ``[b"\\x01", b"\\x02"]``;
+    ``{"__fill__": [7, 921600]}`` is a uint8 array of 921600 sevens (an image, short enough for argv)."""
     if isinstance(value, dict) and "__bytes__" in value:
         return [bytes([b]) for b in value["__bytes__"]]
+    if isinstance(value, dict) and "__fill__" in value:
+        byte, count = value["__fill__"]
+        return array.array("B", bytes([byte]) * count)
     return value
 
 
 def _assign(msg, values: dict) -> None:
     for key, value in values.items():
         current = getattr(msg, key)
-        if isinstance(value, dict) and "__bytes__" not in value:
+        if isinstance(value, dict) and "__bytes__" not in value and "__fill__" not in value:
             _assign(current, value)
         else:
             setattr(msg, key, _value(value))
@@ -70,18 +78,23 @@ def main() -> None:
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
     node, stop = rosmain.start(spec["node"], namespace=spec.get("namespace", "/"))
-    for item in spec.get("publish", []):
-        cls = _load(item["type"])
-        qos = QoSProfile(
+    def qos(item):
+        return QoSProfile(
             depth=item.get("depth", 10),
             reliability=(ReliabilityPolicy.BEST_EFFORT if item.get("reliability") == "best_effort"
                          else ReliabilityPolicy.RELIABLE),
             durability=(DurabilityPolicy.TRANSIENT_LOCAL if item.get("durability") == "transient_local"
                         else DurabilityPolicy.VOLATILE),
         )
-        pub = node.create_publisher(cls, item["topic"], qos)
-        msg = cls()
-        _assign(msg, item.get("value", {}))
+
+    for item in spec.get("publish", []):
+        cls = _load(item["type"])
+        pub = node.create_publisher(cls, item["topic"], qos(item))
+        if item.get("raw") is not None:
+            msg = bytes.fromhex(item["raw"])
+        else:
+            msg = cls()
+            _assign(msg, item.get("value", {}))
         state = {"n": 0}
 
         def tick(pub=pub, msg=msg, item=item, state=state):
@@ -104,7 +117,7 @@ def main() -> None:
             if echo:
                 print(json.dumps({"topic": topic, "data": _plain(msg)}), flush=True)
 
-        node.create_subscription(cls, item["topic"], on_msg, 10)
+        node.create_subscription(cls, item["topic"], on_msg, qos(item))
 
     print("READY", flush=True)
     rosmain.spin(node, stop)
