@@ -117,6 +117,10 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("max_publishers", int, 64, "LRU cap on pooled publishers (PUT)", 1, 1024),
     Setting("publish_match_wait", float, 1.0, "seconds a new publisher waits for the topic's "
             "subscribers to match before it publishes", 0, 30),
+    Setting("max_subscriptions", int, 1000, "cyclic subscriptions (SSE streams' sources) held at once",
+            1, 100000),
+    Setting("max_stream_duration", int, 3600, "longest duration in seconds a cyclic subscription may ask",
+            1, 86400),
     Setting("gateway_name", str, "sovd_gateway", "ROS node name prefix; the worker's node is <name>_sub"),
     # --- HTTP side ---
     Setting("bind", str, "127.0.0.1:8080", "HOST:PORT the HTTP server listens on"),

@@ -152,7 +152,8 @@ RESPONSES: dict[str, Any] = {
     "NotFound": "Unknown entity (`entity-not-found`, parameters `entity_id`)",
     "Unavailable": ("The ROS worker is down or restarting (`vendor-error`, "
                     "`x-medkit-ros-worker-unavailable`), busy (`x-medkit-ros-worker-backpressure`), "
-                    "shutting down (`x-medkit-gateway-shutdown`) or too many callers wait on cold topics "
+                    "shutting down (`x-medkit-gateway-shutdown`), every pooled topic waits for its first "
+                    "message (`x-medkit-pool-busy`), or too many callers wait on cold topics "
                     "(`x-medkit-cold-wait-cap-exceeded`, parameters `topic`, `cold_wait_cap`, `entity_id`, "
                     "`topic_name`); retry after `Retry-After` seconds"),
     "NotResponding": "The ROS worker did not answer in time (`not-responding`)",

@@ -18,7 +18,7 @@ from typing import Any
 from flask import Flask
 
 from . import config as settings
-from . import errors, rosclient
+from . import errors, rosclient, streams
 
 
 def create_app(test_config: dict[str, Any] | None = None) -> Flask:
@@ -33,7 +33,7 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
     app.config["SOVD"] = cfg
     app.config["MAX_CONTENT_LENGTH"] = cfg.max_body_bytes
 
-    from .routes import common, data, discovery, root
+    from .routes import common, data, discovery, root, subscriptions
 
     # `data//a/b` must reach the data route as `/a/b`, not be redirected to `data/a/b`.
     app.url_map.merge_slashes = False
@@ -42,7 +42,9 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
 
     errors.init_app(app)
     rosclient.init_app(app)
+    streams.init_app(app)
     app.register_blueprint(root.bp)
     app.register_blueprint(discovery.bp)
     app.register_blueprint(data.bp)
+    app.register_blueprint(subscriptions.bp)
     return app

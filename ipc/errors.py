@@ -21,14 +21,17 @@ CODES: dict[str, tuple[int, str, str | None, int | None]] = {
     "unsupported-version": (400, "invalid-request", None, None),
     "not-enabled": (403, "invalid-request", None, None),
     "no-such-topic": (404, "resource-not-found", None, None),
+    "no-such-subscription": (404, "resource-not-found", None, None),
     "subscribe-failed": (500, "vendor-error", "x-medkit-subscribe-failed", None),
     "publish-failed": (500, "vendor-error", "x-medkit-publish-failed", None),
     "internal": (500, "internal-error", None, None),
     "message-undecodable": (502, "vendor-error", "x-medkit-message-undecodable", None),
     "cold-wait-cap-exceeded": (503, "vendor-error", "x-medkit-cold-wait-cap-exceeded", 1),
     "backpressure": (503, "vendor-error", "x-medkit-ros-worker-backpressure", 1),
+    "pool-busy": (503, "vendor-error", "x-medkit-pool-busy", 1),
     "shutdown": (503, "vendor-error", "x-medkit-gateway-shutdown", 2),
     "unavailable": (503, "vendor-error", "x-medkit-ros-worker-unavailable", 2),
+    "subscriptions-full": (503, "service-unavailable", None, 5),
     "deadline-exceeded": (504, "not-responding", None, None),
 }
 

@@ -28,13 +28,14 @@ MAX_TOPIC_LEN = 1024
 
 COMMANDS = (
     "ping", "stats", "graph", "sample", "subscribe", "evict", "publish", "type_info", "pool",
+    "sub_create", "sub_list", "sub_get", "sub_update", "sub_delete", "streams_report",
     "debug_sleep",
 )
 # Commands answered from counters by the control thread, without queueing behind ROS work;
 # clients send them to the control socket.
 IMMEDIATE = ("ping", "stats")
-# Commands that may be sent again after a timeout (publish is not).
-IDEMPOTENT = frozenset(c for c in COMMANDS if c != "publish")
+# Commands that may be sent again after a timeout (publish and sub_create are not).
+IDEMPOTENT = frozenset(c for c in COMMANDS if c not in ("publish", "sub_create"))
 
 
 def endpoint(runtime_dir: str) -> str:

@@ -32,7 +32,7 @@ from typing import Any
 
 import zmq
 
-from . import protocol
+from . import events, protocol
 from .errors import IpcError
 
 log = logging.getLogger("sovd.rosworker.ipc")
@@ -90,16 +90,29 @@ def bind_router(zctx: zmq.Context, runtime_dir: str, name: str) -> zmq.Socket:
     # need, and it bounds what a hostile peer makes the worker buffer.
     router.setsockopt(zmq.RCVHWM, 1000)
     router.setsockopt(zmq.SNDHWM, 1000)
+    return _bind_private(router, runtime_dir, name)
+
+
+def bind_publisher(zctx: zmq.Context, runtime_dir: str) -> zmq.Socket:
+    """The events PUB socket (``ipc/events.py``), private to the service user (0600)."""
+    pub = zctx.socket(zmq.PUB)
+    pub.setsockopt(zmq.LINGER, 0)
+    pub.setsockopt(zmq.SNDHWM, events.HIGH_WATER)
+    pub.setsockopt(zmq.MAXMSGSIZE, 4096)  # subscription messages are all it ever receives
+    return _bind_private(pub, runtime_dir, events.EVENTS_SOCKET_NAME)
+
+
+def _bind_private(sock: zmq.Socket, runtime_dir: str, name: str) -> zmq.Socket:
     path = os.path.join(runtime_dir, name)
     if os.path.exists(path):
         os.unlink(path)  # stale: we hold the lock, so nobody else serves it
     old_umask = os.umask(0o177)
     try:
-        router.bind("ipc://" + path)
+        sock.bind("ipc://" + path)
     finally:
         os.umask(old_umask)
     os.chmod(path, 0o600)
-    return router
+    return sock
 
 
 @dataclass(slots=True)

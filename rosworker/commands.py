@@ -10,6 +10,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
+from ipc import events
 from ipc.errors import IpcError
 from ipc.topics import InvalidTopic, normalize_topic
 
@@ -18,6 +19,7 @@ from .executor import RosExecutor, Task
 from .graph import GraphMonitor
 from .pool import BYTES_MODES, TopicPool
 from .publishers import PublisherPool
+from .streams import StreamRegistry
 
 
 def _topic(args: dict) -> str:
@@ -25,6 +27,14 @@ def _topic(args: dict) -> str:
         return normalize_topic(args.get("topic"))
     except InvalidTopic as exc:
         raise IpcError("invalid-topic", str(exc), {"topic": str(args.get("topic"))[:300]}) from None
+
+
+def _string(args: dict, name: str, choices: tuple[str, ...] | None = None, limit: int = 4096) -> str:
+    value = args.get(name)
+    if not isinstance(value, str) or not value or len(value) > limit or (choices and value not in choices):
+        raise IpcError("bad-request", f"{name}: expected " + (f"one of {', '.join(choices)}" if choices
+                                                               else f"a string of 1 to {limit} characters"))
+    return value
 
 
 def _number(args: dict, name: str, default: float, low: float, high: float) -> float:
@@ -36,15 +46,18 @@ def _number(args: dict, name: str, default: float, low: float, high: float) -> f
 
 class Commands:
     def __init__(self, executor: RosExecutor, pool: TopicPool, graph: GraphMonitor,
-                 publishers: PublisherPool, *, sample_timeout: float, debug: bool):
+                 publishers: PublisherPool, streams: StreamRegistry, *, sample_timeout: float, debug: bool):
         self.pool = pool
         self.graph = graph
         self.publishers = publishers
+        self.streams = streams
         self.sample_timeout = sample_timeout
         handlers = {
             "sample": self.sample, "subscribe": self.subscribe, "evict": self.evict,
             "graph": self.graph_cmd, "publish": self.publish, "type_info": self.type_info,
-            "pool": self.pool_cmd,
+            "pool": self.pool_cmd, "sub_create": self.sub_create, "sub_list": self.sub_list,
+            "sub_get": self.sub_get, "sub_update": self.sub_update, "sub_delete": self.sub_delete,
+            "streams_report": self.streams_report,
         }
         if debug:
             handlers["debug_sleep"] = self.debug_sleep
@@ -95,6 +108,54 @@ class Commands:
         except convert.ConversionError as exc:
             raise IpcError(exc.code, exc.message, {"type": type_name[:300]}) from None
         task.reply(info)
+
+    # ---- cyclic subscriptions (the HTTP side has checked what a client sent; these guard the wire) ----
+    def _entity(self, args: dict) -> tuple[str, str]:
+        return _string(args, "collection", ("apps", "components", "functions")), _string(args, "entity_id",
+                                                                                         limit=256)
+
+    def _duration(self, args: dict) -> int:
+        value = args.get("duration")
+        limit = self.streams.max_duration
+        if isinstance(value, bool) or not isinstance(value, int) or not 0 < value <= limit:
+            raise IpcError("bad-request", f"duration: expected an integer from 1 to {limit}")
+        return value
+
+    def sub_create(self, task: Task) -> None:
+        collection, entity_id = self._entity(task.args)
+        mode = _string(task.args, "bytes", BYTES_MODES)
+        task.reply(self.streams.create(collection, entity_id, _string(task.args, "resource"),
+                                       _topic(task.args), mode, _string(task.args, "interval",
+                                                                        tuple(events.INTERVALS)),
+                                       self._duration(task.args)))
+
+    def sub_list(self, task: Task) -> None:
+        task.reply({"items": self.streams.listing(*self._entity(task.args))})
+
+    def sub_get(self, task: Task) -> None:
+        task.reply(self.streams.get(*self._entity(task.args), _string(task.args, "id", limit=64)).wire())
+
+    def sub_update(self, task: Task) -> None:
+        interval = duration = None
+        if task.args.get("interval") is not None:
+            interval = _string(task.args, "interval", tuple(events.INTERVALS))
+        if task.args.get("duration") is not None:
+            duration = self._duration(task.args)
+        task.reply(self.streams.update(*self._entity(task.args), _string(task.args, "id", limit=64),
+                                       interval, duration))
+
+    def sub_delete(self, task: Task) -> None:
+        self.streams.delete(*self._entity(task.args), _string(task.args, "id", limit=64))
+        task.reply({})
+
+    def streams_report(self, task: Task) -> None:
+        pid = task.args.get("pid")
+        counters = {k: task.args.get(k) for k in ("open_streams", "frames_sent", "frames_dropped")}
+        if isinstance(pid, bool) or not isinstance(pid, int) or not all(
+                isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in counters.values()):
+            raise IpcError("bad-request", "streams_report: expected pid and non-negative counters")
+        self.streams.report(pid, counters)
+        task.reply({})
 
     def debug_sleep(self, task: Task) -> None:
         time.sleep(_number(task.args, "seconds", 1.0, 0, 600))

@@ -108,6 +108,7 @@ class Worker:
         from .publishers import PublisherPool
         from .state import RestartState
         from .stats import Stats
+        from .streams import StreamRegistry
 
         cfg = self.cfg
         try:
@@ -134,7 +135,10 @@ class Worker:
         graph = GraphMonitor(node, pool, stats)
         publishers = PublisherPool(node, executor, stats, pool, cfg.max_publishers, cfg.idle_safety_net,
                                    cfg.publish_match_wait)
-        Commands(executor, pool, graph, publishers, sample_timeout=cfg.sample_timeout,
+        streams = StreamRegistry(zctx, cfg.runtime_dir, executor, pool, stats,
+                                 max_subscriptions=cfg.max_subscriptions,
+                                 max_duration=cfg.max_stream_duration, sample_timeout=cfg.sample_timeout)
+        Commands(executor, pool, graph, publishers, streams, sample_timeout=cfg.sample_timeout,
                  debug=cfg.debug_commands)
         self.executor = executor
         if self._signal is not None:
@@ -146,19 +150,21 @@ class Worker:
                 fn()
             executor.call_later(seconds, tick)
 
-        rewarm, known_nodes = state.load()
+        rewarm, known_nodes, subscriptions = state.load()
         self._settle_discovery(node, set(known_nodes))
         executor.guarded("the first graph check", graph.tick)
         every(cfg.graph_poll_tick / 1000, graph.tick)
         if cfg.idle_safety_net:
             every(cfg.idle_sweep_tick, pool.sweep_idle)
             every(cfg.idle_sweep_tick, publishers.sweep_idle)
-        every(STATE_SAVE_EVERY, lambda: state.save(pool.restart_topics(), graph.nodes))
+        every(STATE_SAVE_EVERY, lambda: state.save(pool.restart_topics(), graph.nodes, streams.saved()))
         if rewarm:
             self._rewarm(executor, pool, rewarm, time.monotonic() + REWARM_FOR)
+        streams.restore(subscriptions)
 
         try:
             executor.bind()
+            streams.bind()
             control.start()
         except Exception as exc:
             log.error("cannot serve IPC on %s: %s", cfg.runtime_dir, exc)
@@ -178,6 +184,7 @@ class Worker:
             executor.guarded("the publishers' shutdown", publishers.shutdown)
             executor.linger()
         finally:
+            streams.close()
             executor.close()
             control.finish()
             node.destroy_node()

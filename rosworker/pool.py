@@ -25,7 +25,8 @@ The gateway's own endpoints (its subscriptions here, its publishers for PUT)
 never count as a topic's publishers or subscribers.
 
 Evictions: graph change (no publisher left, or the type changed), LRU at
-the cap (never an entry somebody waits on), the byte budget, idle sweep,
+the cap (never an entry somebody waits on: when every entry has waiters, a
+new topic is refused with ``pool-busy``), the byte budget, idle sweep,
 manual (``evict``), shutdown.  Each wakes the entry's waiters (they get
 metadata_only) and destroys the subscription here, on the ROS thread.
 """
@@ -142,6 +143,28 @@ class TopicPool:
             task.reply(self._data(entry, mode))
             return
         self._park(task, entry, mode, timeout)
+
+    def peek(self, topic: str, mode: str) -> dict[str, Any] | None:
+        """What a read would answer now, without waiting (a stream's tick); None: no first message yet.
+
+        Not counted as a hit or miss: those count reads.  Raises IpcError as ``_data`` does.
+        """
+        if self.closing:
+            return self._metadata(topic, None, "shutdown")
+        entry = self.entries.get(topic)
+        if entry is None:
+            entry, reason = self._create(topic)
+            if entry is None:
+                return self._metadata(topic, None, reason)
+        else:
+            self.entries.move_to_end(topic)
+        entry.last_read = time.monotonic()
+        self._take(entry)
+        return None if entry.raw is None else self._data(entry, mode)
+
+    def waiting(self, topic: str) -> dict[str, Any]:
+        """The answer for a pooled topic whose first message did not come in time."""
+        return self._metadata(topic, self.entries.get(topic), "timeout")
 
     def subscribe(self, topic: str) -> dict[str, Any]:
         entry = self.entries.get(topic)
@@ -278,14 +301,21 @@ class TopicPool:
         if previous is not None and previous != type_name:
             self.stats.type_change_events += 1
         self._remember_type(topic, type_name)
+        victim = None
+        if len(self.entries) >= self.max_pool_size:
+            victim = next((e for e in self.entries.values() if not e.waiters), None)
+            if victim is None:
+                raise IpcError("pool-busy", f"Every pooled topic ({self.max_pool_size}, max_pool_size) still "
+                                            "waits for its first message; retry with backoff",
+                               {"topic": topic, "max_pool_size": self.max_pool_size})
         entry = Entry(topic, type_name, cls)
         entry.publisher_count = len(infos)
         entry.subscriber_count = self.subscriber_count(topic)
         same_type = [i for i in infos if i.topic_type == type_name]
         entry.sub, entry.profile = self._subscribe(entry, same_type)
         entry.matched = entry.sub.handle.get_publisher_count()
-        if len(self.entries) >= self.max_pool_size:
-            self._evict_lru("lru")
+        if victim is not None:
+            self.evict(victim, "lru")
         self.entries[topic] = entry
         self.stats.pool_size = len(self.entries)
         return entry, "pooled"
@@ -342,14 +372,6 @@ class TopicPool:
                 self.evict(entry, "bytes")
 
     # ---- evictions ----------------------------------------------------------------------
-    def _evict_lru(self, reason: str) -> None:
-        """Evict the least recently read entry that nobody waits on (waiters are never cut short)."""
-        for entry in self.entries.values():
-            if not entry.waiters:
-                self.evict(entry, reason)
-                return
-        # Every entry has waiters: the pool exceeds its cap by at most the cold waiters, briefly.
-
     def evict(self, entry: Entry, reason: str) -> None:
         if self.entries.get(entry.topic) is not entry:
             return

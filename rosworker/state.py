@@ -1,9 +1,9 @@
 """What a restarted ROS worker needs from its predecessor, kept in the runtime dir.
 
 ``<runtime_dir>/pool.json``: the pooled topics (subscribed again as their
-publishers are discovered) and the nodes of the graph (the new worker does
+publishers are discovered), the nodes of the graph (the new worker does
 not answer anyone until discovery has found them again, or a deadline
-passes).  Written atomically, at most once per ``STATE_SAVE_EVERY``, only when
+passes) and the cyclic subscriptions (their streams go on after the restart).  Written atomically, at most once per ``STATE_SAVE_EVERY``, only when
 it changed; a worker killed outright leaves the last copy behind.
 """
 
@@ -24,8 +24,9 @@ class RestartState:
         self.path = os.path.join(runtime_dir, FILE_NAME)
         self._saved: tuple | None = None
 
-    def save(self, topics: list[str], nodes: list[str]) -> None:
-        current = (tuple(topics), tuple(nodes))
+    def save(self, topics: list[str], nodes: list[str], subscriptions: list[dict] | None = None) -> None:
+        subscriptions = subscriptions or []
+        current = (tuple(topics), tuple(nodes), json.dumps(subscriptions, sort_keys=True))
         if current == self._saved:
             return
         tmp = self.path + ".tmp"
@@ -35,24 +36,26 @@ class RestartState:
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
             os.fchmod(fd, 0o600)  # an older copy may have been made with other bits
             with os.fdopen(fd, "w") as fh:
-                json.dump({"topics": topics, "nodes": nodes}, fh)
+                json.dump({"topics": topics, "nodes": nodes, "subscriptions": subscriptions}, fh)
             os.replace(tmp, self.path)
             self._saved = current
         except OSError as exc:
             log.warning("could not save the restart state to %s: %s", self.path, exc)
 
-    def load(self) -> tuple[list[str], list[str]]:
-        """``(topics, nodes)`` saved by the previous worker; empty lists when there is none."""
+    def load(self) -> tuple[list[str], list[str], list[dict]]:
+        """``(topics, nodes, subscriptions)`` saved by the previous worker; empty when there is none."""
         try:
             with open(self.path) as fh:
                 data = json.load(fh)
         except (OSError, ValueError):
-            return [], []
+            return [], [], []
         if not isinstance(data, dict):
-            return [], []
+            return [], [], []
 
         def strings(key: str) -> list[str]:
             items = data.get(key)
             return [x for x in items if isinstance(x, str)][-MAX_ITEMS:] if isinstance(items, list) else []
 
-        return strings("topics"), strings("nodes")
+        subs = data.get("subscriptions")
+        subs = [s for s in subs if isinstance(s, dict)][-MAX_ITEMS:] if isinstance(subs, list) else []
+        return strings("topics"), strings("nodes"), subs

@@ -56,6 +56,14 @@ class Stats:
     # queued commands: name -> [count, total µs on the ROS thread] (the names are a fixed set)
     commands: dict = field(default_factory=dict)
     current_task_started: float = 0.0  # monotonic; 0 while idle
+    # cyclic subscriptions (rosworker/streams.py) and the HTTP workers' streams (their reports)
+    max_subscriptions: int = 0
+    active_subscriptions: int = 0
+    subscriptions_created: int = 0
+    subscriptions_expired: int = 0
+    frames_published: int = 0
+    ticks: dict = field(default_factory=dict)
+    streams: dict = field(default_factory=lambda: {"open_streams": 0, "frames_sent": 0, "frames_dropped": 0})
 
     def task_started(self) -> float:
         now = time.monotonic()
@@ -123,6 +131,14 @@ class Stats:
                 "graph_events_received": self.graph_events_received,
                 "loop_errors": self.loop_errors,
             },
+            "streams": {
+                "active_subscriptions": self.active_subscriptions,
+                "max_subscriptions": self.max_subscriptions,
+                **self.streams,
+                "frames_published": self.frames_published,
+                "subscriptions_created": self.subscriptions_created,
+                "subscriptions_expired": self.subscriptions_expired,
+            },
             "details": {
                 "evictions": dict(self.evictions),
                 "publishers": self.publishers,
@@ -132,5 +148,6 @@ class Stats:
                 "pool_json_drops": self.pool_json_drops,
                 "ipc_dropped_frames": self.ipc_dropped_frames,
                 "commands": {name: {"count": n, "time_us": t} for name, (n, t) in self.commands.items()},
+                "ticks": dict(self.ticks),
             },
         }

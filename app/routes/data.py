@@ -10,12 +10,11 @@ from __future__ import annotations
 import time
 from typing import Any
 
-import orjson
 from flask import Blueprint, current_app
 
 from ipc.errors import IpcError
 
-from .. import rosclient
+from .. import rosclient, samples
 from ..entities import API_BASE, data_items
 from ..errors import ApiError
 from .common import check_entity_id, config, json_response, lookup
@@ -65,45 +64,13 @@ def read(collection: str, entity_id: str, data_id: str):
     try:
         result = rosclient.get().call("sample", args, timeout + SAMPLE_IPC_MARGIN_S)
     except IpcError as exc:
-        raise _sample_error(exc, entity.id, topic, data_id) from None
-    data = result.get("data_json")
-    if not isinstance(data, bytes) or not data:
-        data = b"{}"
-    status = result.get("status") if result.get("status") in ("data", "metadata_only") else "metadata_only"
-    ros2: dict[str, Any] = {"topic": topic}
-    if isinstance(result.get("type"), str):
-        ros2["type"] = result["type"]
-    ext: dict[str, Any] = {
-        "entity_id": entity.id,
-        "timestamp": result.get("timestamp") if isinstance(result.get("timestamp"), int) else time.time_ns(),
-        "ros2": ros2,
-        "publisher_count": result.get("publisher_count", 0),
-        "subscriber_count": result.get("subscriber_count", 0),
-        "status": status,
-    }
-    if status == "metadata_only":
-        if result.get("reason"):
-            ext["reason"] = result["reason"]
-        data = b"{}"
-    head = b'{"id":' + orjson.dumps(topic) + b',"data":'
-    tail = b',"x-medkit":' + orjson.dumps(ext) + b"}"
+        raise samples.error(exc, entity.id, topic, data_id, config().cold_wait_cap) from None
+    head, data, tail = samples.body_parts(topic, result, entity.id)
     if len(data) > SPLICE_COPY_LIMIT:
         # A large message (an image is ~3 MB of JSON) is not copied once more: the three
         # parts are written one after the other (Werkzeug adds their Content-Length).
         return current_app.response_class([head, data, tail], mimetype="application/json")
     return current_app.response_class(b"".join((head, data, tail)), mimetype="application/json")
-
-
-def _sample_error(exc: IpcError, entity_id: str, topic: str, data_id: str) -> ApiError:
-    params = {"entity_id": entity_id, "topic_name": data_id[:300]}
-    if exc.code == "cold-wait-cap-exceeded":
-        cap = exc.params.get("cold_wait_cap", config().cold_wait_cap)
-        return ApiError.from_ipc(
-            exc, {"topic": topic, "cold_wait_cap": cap, **params},
-            message=f"Too many requests are already waiting for the first message of cold topics "
-                    f"(cap {cap}); retry with backoff",
-        )
-    return ApiError.from_ipc(exc, params)
 
 
 @bp.put(ENTITY + "/data/<data_id:data_id>")

@@ -25,6 +25,10 @@ DATA_PROVIDER_KEYS = (
     "graph_events_received", "concurrent_cold_waits", "cold_wait_cap", "unsupported_type_count",
     "undecodable_messages", "pool_bytes", "pool_bytes_cap",
 )
+STREAMS_KEYS = (
+    "active_subscriptions", "max_subscriptions", "open_streams", "frames_sent", "frames_dropped",
+    "frames_published", "subscriptions_created", "subscriptions_expired",
+)
 EXECUTOR_KEYS = (
     "worker_alive", "degraded", "queue_depth", "queue_max_depth_observed", "queue_dropped",
     "tasks_completed", "tasks_failed", "last_task_latency_us", "max_task_latency_us",
@@ -81,7 +85,7 @@ def health():
     answer (then the counters are the last ones received, or zeros).
     """
     alive, stats = rosclient.get().stats()
-    provider, executor = _sections(stats)
+    provider, executor, streams = _sections(stats)
     executor["worker_alive"] = alive
     if not alive:
         status = "unhealthy"
@@ -95,19 +99,21 @@ def health():
         "discovery": {"mode": "runtime_only", "strategy": "runtime"},
         "x-medkit-data-provider": provider,
         "x-medkit-subscription-executor": executor,
+        "x-medkit-streams": streams,
     })
 
 
-def _sections(stats: dict[str, Any] | None) -> tuple[dict[str, Any], dict[str, Any]]:
+def _sections(stats: dict[str, Any] | None) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
     cfg = config()
     provider: dict[str, Any] = {k: 0 for k in DATA_PROVIDER_KEYS}
     provider.update(pool_cap=cfg.max_pool_size, cold_wait_cap=cfg.cold_wait_cap,
                     pool_bytes_cap=cfg.max_pool_bytes)
     executor: dict[str, Any] = {k: 0 for k in EXECUTOR_KEYS}
     executor.update(worker_alive=False, degraded=False)
+    streams: dict[str, Any] = {k: 0 for k in STREAMS_KEYS}
+    streams["max_subscriptions"] = cfg.max_subscriptions
     if stats:
-        if isinstance(stats.get("data_provider"), dict):
-            provider.update(stats["data_provider"])
-        if isinstance(stats.get("executor"), dict):
-            executor.update(stats["executor"])
-    return provider, executor
+        for section, name in ((provider, "data_provider"), (executor, "executor"), (streams, "streams")):
+            if isinstance(stats.get(name), dict):
+                section.update(stats[name])
+    return provider, executor, streams

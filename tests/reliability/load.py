@@ -57,6 +57,8 @@ VENDOR_CODES = {
     "x-medkit-gateway-shutdown": 503,
     "x-medkit-ros-worker-unavailable": 503,
     "x-medkit-ros-worker-backpressure": 503,
+    "x-medkit-pool-busy": 503,
+    "x-medkit-message-undecodable": 502,
     "x-medkit-subscribe-failed": 500,
     "x-medkit-publish-failed": 500,
 }
@@ -70,7 +72,8 @@ def problem(status: int, headers: dict[str, str], body: bytes, *,
     200 and every 4xx are fine when the body is JSON (errors: a known
     ``error_code`` and a ``message``).  5xx are fine only as documented
     errors: 503 ``vendor-error`` with a known ``vendor_code`` and a
-    ``Retry-After``, 504 ``not-responding``, 501 ``not-implemented``.  A 500 is
+    ``Retry-After``, 502 ``x-medkit-message-undecodable``, 504 ``not-responding``,
+    501 ``not-implemented``.  A 500 is
     a problem unless ``allow`` lists it.
     """
     ctype = headers.get("content-type", "")
@@ -98,6 +101,8 @@ def problem(status: int, headers: dict[str, str], body: bytes, *,
         if not headers.get("retry-after", "").isdigit():
             return f"503 {vendor} without a Retry-After header"
         return None
+    if status == 502:  # vendor-error with its vendor code, checked above
+        return None if doc["error_code"] == "vendor-error" else f"502 {doc['error_code']}"
     if status == 504:
         return None if doc["error_code"] == "not-responding" else f"504 {doc['error_code']}"
     if status == 501:

@@ -93,6 +93,7 @@ class FakeWorker:
         self.silent: set[str] = set()
         self.delays: dict[str, float] = {}
         self.requests: list[tuple[str, dict[str, Any], int]] = []
+        self.subscriptions: dict[str, dict[str, Any]] = {}
         self.apps: list[Any] = []  # Flask apps made by make_app(self): closed with the worker
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -220,9 +221,44 @@ class FakeWorker:
                 return IpcError("type-not-installed", f"message type {args.get('type')} is not installed",
                                 {"type": args.get("type")})
             return {"type": args["type"], **info}
+        if cmd.startswith("sub_"):
+            return self._subscription(cmd, args)
+        if cmd == "streams_report":
+            return {}
         if cmd == "publish":
             return {"topic": args.get("topic"), "type": args.get("type"), "status": "published",
                     "subscriber_count": 1, "unmatched_subscriber_count": 0}
+        return IpcError("unknown-command", f"unknown command {cmd!r}")
+
+
+    def _subscription(self, cmd: str, args: dict[str, Any]) -> Any:
+        """The ``sub_*`` commands over a plain dict (the real registry is rosworker/streams.py)."""
+        owner = (args.get("collection"), args.get("entity_id"))
+        if cmd == "sub_create":
+            sub_id = f"sub_{len(self.subscriptions) + 1:016x}"
+            now = time.time_ns()
+            sub = {k: args[k] for k in ("collection", "entity_id", "resource", "topic", "bytes", "interval",
+                                        "duration")}
+            sub.update(id=sub_id, expires_at_ns=now + args["duration"] * 10**9, created_at_ns=now,
+                       key=f"d|{args['interval']}|{args['bytes']}|{args['topic']}|".encode())
+            self.subscriptions[sub_id] = sub
+            return sub
+        if cmd == "sub_list":
+            return {"items": [s for s in self.subscriptions.values()
+                              if (s["collection"], s["entity_id"]) == owner]}
+        sub = self.subscriptions.get(args.get("id"))
+        if sub is None or (sub["collection"], sub["entity_id"]) != owner:
+            return IpcError("no-such-subscription", "Subscription not found", {"subscription_id": args.get("id")})
+        if cmd == "sub_get":
+            return sub
+        if cmd == "sub_update":
+            for key in ("interval", "duration"):
+                if args.get(key) is not None:
+                    sub[key] = args[key]
+            return sub
+        if cmd == "sub_delete":
+            del self.subscriptions[sub["id"]]
+            return {}
         return IpcError("unknown-command", f"unknown command {cmd!r}")
 
 

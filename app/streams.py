@@ -1,0 +1,387 @@
+"""The HTTP worker's side of cyclic subscriptions: one events socket, many SSE streams.
+
+One :class:`StreamHub` per HTTP worker process, made on first use after the
+fork.  It holds one ZeroMQ SUB socket on the ROS worker's events channel
+(``ipc/events.py``) and every open stream of this process, all on gevent:
+no thread per stream.
+
+- The *reader* greenlet receives each data frame once per key (a topic at an
+  interval and bytes mode), builds its SSE chunk once per entity (the payload
+  is exactly the body a GET of the resource answers, which names the entity)
+  and hands it to every stream watching that key.  Control frames retime,
+  re-key or end streams; heartbeats and the socket's connect/disconnect
+  events tell whether the ROS worker is there.
+- Each stream is a bounded buffer (``STREAM_BUFFER`` frames, the oldest
+  dropped first: latest-value semantics) drained by its response generator,
+  which also sends a ``:`` keep-alive comment after ``KEEPALIVE`` seconds of
+  silence and ends the stream at its expiry.  A client that stops reading
+  only ever holds a few frames; it never slows the others.
+- The *ticker* greenlet stands in while the ROS worker is down: every stream
+  gets an ``error`` frame per interval (the error a GET would answer), so the
+  stream stays open and visibly degraded until data frames come back.  It
+  also reports this process's counters to the ROS worker every second (the
+  ``x-medkit-streams`` section of ``/health`` sums them) and ends every
+  stream with a last ``error`` frame when the HTTP worker shuts down.
+
+Before fork / after fork: nothing here runs at import time; the hub, its
+socket and its greenlets are made by :func:`get` in the worker process.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import os
+import time
+from collections.abc import Callable, Iterator
+from datetime import UTC, datetime
+from typing import Any
+
+import gevent
+import gevent.event
+import orjson
+import zmq.green as zmq
+from flask import Flask, current_app
+
+from ipc import events, protocol
+from ipc.errors import IpcError
+
+from . import rosclient, samples
+
+log = logging.getLogger("sovd.http.streams")
+
+STREAM_BUFFER = 4          # frames a stream holds for a slow client; the oldest go first
+KEEPALIVE = 15.0           # seconds of silence before a ":" comment line
+TICK = 0.05                # seconds between the ticker's rounds
+HEARTBEAT_LOST = 3.0       # seconds without a heartbeat before the ROS worker counts as gone
+REPORT_EVERY = 1.0
+REPORT_TIMEOUT = 0.5
+
+
+UNAVAILABLE = IpcError("unavailable", "The ROS worker is not running; data frames resume when it is back")
+SHUTDOWN = IpcError("shutdown", "The gateway is shutting down; this stream ends")
+
+
+def rfc3339(ns: int) -> bytes:
+    """``2026-02-14T10:30:00.250Z``: UTC, milliseconds."""
+    return (datetime.fromtimestamp(ns / 1e9, UTC).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z").encode()
+
+
+def frame(stamp_ns: int, *, payload: bytes | None = None, error: bytes | None = None) -> bytes:
+    """One SSE event: ``data: {"timestamp", "payload" | "error"}`` and a blank line."""
+    field = b'"payload":' + payload if payload is not None else b'"error":' + error
+    return b'data: {"timestamp":"' + rfc3339(stamp_ns) + b'",' + field + b"}\n\n"
+
+
+def error_frame(stream: Stream, exc: IpcError, stamp_ns: int | None = None) -> bytes:
+    """The ``error`` frame of ``stream``: the error body a GET of its resource would answer."""
+    body = samples.error(exc, stream.entity_id, stream.topic, stream.topic, 0).to_dict()
+    return frame(time.time_ns() if stamp_ns is None else stamp_ns, error=orjson.dumps(body))
+
+
+class Stream:
+    """One open ``.../events`` response."""
+
+    def __init__(self, hub: StreamHub, sub: dict[str, Any]):
+        self.hub = hub
+        self.id: str = sub["id"]
+        self.entity_id: str = sub["entity_id"]
+        self.topic: str = sub["topic"]
+        self.key: bytes = sub["key"]
+        self.interval: str = sub["interval"]
+        self.expires = time.monotonic() + max(0.0, (sub["expires_at_ns"] - time.time_ns()) / 1e9)
+        self.frames: collections.deque[bytes] = collections.deque()
+        self.wake = gevent.event.Event()
+        self.ended = False
+        self.last_frame = time.monotonic()
+
+    @property
+    def period(self) -> float:
+        return events.INTERVALS[self.interval]
+
+    def push(self, chunk: bytes) -> None:
+        if self.ended:
+            return
+        if len(self.frames) >= STREAM_BUFFER:
+            self.frames.popleft()
+            self.hub.counters["frames_dropped"] += 1
+        self.frames.append(chunk)
+        self.last_frame = time.monotonic()
+        self.wake.set()
+
+    def end(self, last: bytes | None = None) -> None:
+        if last is not None:
+            self.push(last)
+        self.ended = True
+        self.wake.set()
+
+    def body(self) -> Iterator[bytes]:
+        """The response body; its ``finally`` gives the stream back (client gone, expiry, end)."""
+        hub = self.hub
+        try:
+            quiet_since = time.monotonic()
+            while True:
+                if self.frames:
+                    chunk = self.frames.popleft()
+                    hub.counters["frames_sent"] += 1
+                    yield chunk
+                    quiet_since = time.monotonic()
+                    continue
+                if self.ended:
+                    return
+                now = time.monotonic()
+                if now >= self.expires:
+                    return
+                if now - quiet_since >= KEEPALIVE:
+                    yield b": keep-alive\n\n"
+                    quiet_since = now
+                    continue
+                self.wake.clear()
+                if not self.frames and not self.ended:
+                    self.wake.wait(min(self.expires - now, KEEPALIVE - (now - quiet_since)))
+        finally:
+            hub.close(self)
+
+
+class StreamHub:
+    def __init__(self, runtime_dir: str, report: Callable[[dict[str, int]], None],
+                 stopping: Callable[[], bool] = lambda: False):
+        self.runtime_dir = runtime_dir
+        self._report = report                  # sends counters to the ROS worker (may raise IpcError)
+        self._stopping = stopping              # true once this HTTP worker is shutting down
+        self.by_key: dict[bytes, set[Stream]] = {}
+        self.by_id: dict[str, set[Stream]] = {}
+        self.counters = {"open_streams": 0, "frames_sent": 0, "frames_dropped": 0}
+        self.connected = False
+        self.heartbeat = 0.0
+        self._ctx: zmq.Context | None = None
+        self._sock = None
+        self._monitor = None
+        self._greenlets: list[gevent.Greenlet] = []
+        self._reported: dict[str, int] | None = None
+        self._next_report = 0.0
+        self._last_payload: dict[tuple[bytes, str], tuple[float, bytes]] = {}
+
+    # ---- lifecycle ------------------------------------------------------------------------
+    def start(self) -> None:
+        self._ctx = zmq.Context()
+        sock = self._ctx.socket(zmq.SUB)
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.setsockopt(zmq.RCVHWM, events.HIGH_WATER)
+        sock.setsockopt(zmq.RECONNECT_IVL, 100)
+        sock.setsockopt(zmq.RECONNECT_IVL_MAX, 1000)
+        sock.setsockopt(zmq.MAXMSGSIZE, protocol.MAX_REPLY_FRAME)
+        self._monitor = sock.get_monitor_socket(zmq.EVENT_CONNECTED | zmq.EVENT_DISCONNECTED)
+        sock.setsockopt(zmq.SUBSCRIBE, events.CONTROL_KEY)
+        sock.setsockopt(zmq.SUBSCRIBE, events.HEARTBEAT_KEY)
+        sock.connect(events.endpoint(self.runtime_dir))
+        self._sock = sock
+        self.heartbeat = time.monotonic()  # a grace period for the first heartbeat
+        self._greenlets = [gevent.spawn(self._read), gevent.spawn(self._tick)]
+
+    def stop(self) -> None:
+        gevent.killall(self._greenlets, timeout=1)
+        for s in (self._monitor, self._sock):
+            if s is not None:
+                s.close(linger=0)
+        if self._ctx is not None:
+            self._ctx.term()
+        self._sock = self._monitor = self._ctx = None
+
+    @property
+    def worker_up(self) -> bool:
+        return self.connected and time.monotonic() - self.heartbeat <= HEARTBEAT_LOST
+
+    # ---- streams ----------------------------------------------------------------------------
+    def open(self, sub: dict[str, Any]) -> Stream:
+        stream = Stream(self, sub)
+        self._add(stream)
+        self.by_id.setdefault(stream.id, set()).add(stream)
+        self.counters["open_streams"] += 1
+        cached = self._last_payload.get((stream.key, stream.entity_id))
+        if cached is not None and time.monotonic() - cached[0] < stream.period * 2:
+            stream.push(cached[1])  # the latest value at once, not one interval later
+        return stream
+
+    def close(self, stream: Stream) -> None:
+        stream.ended = True
+        streams = self.by_id.get(stream.id)
+        if streams is None or stream not in streams:
+            return
+        streams.discard(stream)
+        if not streams:
+            del self.by_id[stream.id]
+        self._remove(stream)
+        self.counters["open_streams"] -= 1
+
+    def _add(self, stream: Stream) -> None:
+        watchers = self.by_key.get(stream.key)
+        if watchers is None:
+            watchers = self.by_key[stream.key] = set()
+            self._sock.setsockopt(zmq.SUBSCRIBE, stream.key)
+        watchers.add(stream)
+
+    def _remove(self, stream: Stream) -> None:
+        watchers = self.by_key.get(stream.key)
+        if watchers is None:
+            return
+        watchers.discard(stream)
+        if not watchers:
+            del self.by_key[stream.key]
+            self._last_payload = {k: v for k, v in self._last_payload.items() if k[0] != stream.key}
+            if self._sock is not None:
+                self._sock.setsockopt(zmq.UNSUBSCRIBE, stream.key)
+
+    def end_all(self, last: Callable[[Stream], bytes | None]) -> None:
+        for streams in list(self.by_id.values()):
+            for stream in list(streams):
+                stream.end(last(stream))
+
+    # ---- the reader -------------------------------------------------------------------------
+    def _read(self) -> None:
+        poller = zmq.Poller()
+        poller.register(self._sock, zmq.POLLIN)
+        poller.register(self._monitor, zmq.POLLIN)
+        while True:
+            try:
+                ready = dict(poller.poll(1000))
+                if self._monitor in ready:
+                    self._monitor_event()
+                if self._sock in ready:
+                    for _ in range(1000):
+                        try:
+                            frames = self._sock.recv_multipart(zmq.NOBLOCK, copy=True)
+                        except zmq.Again:
+                            break
+                        self._dispatch(frames)
+            except gevent.GreenletExit:
+                raise
+            except Exception:  # a malformed frame must not end the reader
+                log.exception("events channel: could not handle a frame")
+
+    def _monitor_event(self) -> None:
+        from zmq.utils.monitor import parse_monitor_message
+
+        event = parse_monitor_message(self._monitor.recv_multipart())["event"]
+        if event == zmq.EVENT_CONNECTED:
+            self.connected = True
+        elif event == zmq.EVENT_DISCONNECTED:
+            self.connected = False
+
+    def _dispatch(self, frames: list[bytes]) -> None:
+        key = frames[0]
+        if key.startswith(events.DATA_PREFIX):
+            if len(frames) == 3:
+                self._data(key, protocol.unpack(frames[1]), frames[2])
+        elif key == events.HEARTBEAT_KEY:
+            self.heartbeat = time.monotonic()
+        elif key.startswith(events.CONTROL_KEY) and len(frames) == 2:
+            self._control(protocol.unpack(frames[1]))
+
+    def _data(self, key: bytes, meta: dict[str, Any], data: bytes) -> None:
+        watchers = self.by_key.get(key)
+        if not watchers:
+            return
+        self.heartbeat = max(self.heartbeat, time.monotonic())  # frames prove the worker is there
+        stamp = meta.get("ts") if isinstance(meta.get("ts"), int) else time.time_ns()
+        chunks: dict[str, bytes] = {}
+        for stream in list(watchers):
+            chunk = chunks.get(stream.entity_id)
+            if chunk is None:
+                chunk = chunks[stream.entity_id] = self._chunk(stream, stamp, meta, data)
+                self._last_payload[(key, stream.entity_id)] = (time.monotonic(), chunk)
+            stream.push(chunk)
+
+    def _chunk(self, stream: Stream, stamp: int, meta: dict[str, Any], data: bytes) -> bytes:
+        if "error" in meta:
+            return error_frame(stream, IpcError.from_wire(meta["error"]), stamp)
+        head, payload, tail = samples.body_parts(stream.topic, {**meta, "data_json": data}, stream.entity_id)
+        return frame(stamp, payload=head + payload + tail)
+
+    def _control(self, event: dict[str, Any]) -> None:
+        streams = list(self.by_id.get(event.get("id"), ()))
+        kind = event.get("event")
+        if kind in ("deleted", "expired"):
+            for stream in streams:
+                stream.end()
+        elif kind == "updated":
+            for stream in streams:
+                self._remove(stream)
+                stream.key = event["key"]
+                stream.interval = event["interval"]
+                stream.expires = time.monotonic() + float(event["expires_in"])
+                self._add(stream)
+                stream.wake.set()
+
+    # ---- the ticker -------------------------------------------------------------------------
+    def _tick(self) -> None:
+        while True:
+            try:
+                gevent.sleep(TICK)
+                now = time.monotonic()
+                if self._stopping():
+                    self.end_all(lambda s: error_frame(s, SHUTDOWN))
+                    return
+                if self.by_id and not self.worker_up:
+                    for streams in list(self.by_id.values()):
+                        for stream in list(streams):
+                            if now - stream.last_frame >= stream.period:
+                                stream.push(error_frame(stream, UNAVAILABLE))
+                if now >= self._next_report:
+                    self._next_report = now + REPORT_EVERY
+                    self._send_report()
+            except gevent.GreenletExit:
+                raise
+            except Exception:
+                log.exception("stream ticker failed a round")
+
+    def _send_report(self) -> None:
+        counters = dict(self.counters)
+        if counters == self._reported:
+            return
+        try:
+            self._report({**counters, "pid": os.getpid()})
+            self._reported = counters
+        except IpcError:
+            pass  # the ROS worker is away; the next round tries again
+
+
+EXTENSION = "sovd_streams"
+
+
+class _PerProcess:
+    """The app's hub, made in the process that first opens a stream (never before the fork)."""
+
+    def __init__(self, runtime_dir: str, ros: rosclient.RosClient):
+        self.runtime_dir = runtime_dir
+        self.ros = ros
+        self.hub: StreamHub | None = None
+        self.pid: int | None = None
+
+    def get(self) -> StreamHub:
+        if self.pid != os.getpid():
+            self.hub = StreamHub(self.runtime_dir, self._report, _worker_stopping)
+            self.hub.start()
+            self.pid = os.getpid()
+        return self.hub
+
+    def _report(self, counters: dict[str, int]) -> None:
+        self.ros.call("streams_report", counters, timeout=REPORT_TIMEOUT)
+
+    def close(self) -> None:
+        if self.hub is not None and self.pid == os.getpid():
+            self.hub.stop()
+        self.hub = self.pid = None
+
+
+def _worker_stopping() -> bool:
+    """True once the HTTP worker this process is has begun to stop (its streams must end)."""
+    return False
+
+
+def init_app(app: Flask) -> None:
+    app.extensions[EXTENSION] = _PerProcess(app.config["SOVD"].runtime_dir, app.extensions[rosclient.EXTENSION])
+
+
+def get() -> StreamHub:
+    return current_app.extensions[EXTENSION].get()

@@ -1,0 +1,41 @@
+"""The events channel: cyclic-subscription frames from the ROS worker to the HTTP workers.
+
+Transport: a ZeroMQ PUB socket that the ROS worker binds on
+``ipc://<runtime_dir>/rosworker-events.sock`` (0600, like the others), and one
+SUB socket per HTTP worker.  Every message is a multipart whose first frame
+is its key; SUB sockets filter on key prefixes, so an HTTP worker receives
+only the keys its open streams watch, once per tick however many of its
+streams watch them.  The wire format is documented in ``ipc/PROTOCOL.md``.
+
+- data ``d|<interval>|<bytes mode>|<topic>|`` + msgpack meta + the JSON text of
+  the message (``{}`` without data): one per tick per watched topic.  meta is a
+  ``sample`` answer without ``data_json`` plus ``ts`` (ns, the tick's time), or
+  ``{"ts", "error": <wire error>}`` when a GET would answer an error;
+- control ``c|<subscription id>`` + msgpack ``{"event": "updated" | "deleted" |
+  "expired", "id", "key", "interval", "expires_in"}``, and ``c|shutdown`` when the
+  ROS worker stops;
+- heartbeat ``h|`` + msgpack ``{"pid", "t"}`` every second.
+"""
+
+from __future__ import annotations
+
+import os
+
+EVENTS_SOCKET_NAME = "rosworker-events.sock"
+# SOVD cyclic-subscription intervals, in seconds.
+INTERVALS = {"fast": 0.05, "normal": 0.2, "slow": 0.5}
+CONTROL_KEY = b"c|"
+HEARTBEAT_KEY = b"h|"
+DATA_PREFIX = b"d|"
+# Per subscriber: frames queued for a slow HTTP worker beyond this are dropped by ZeroMQ,
+# never buffered without bound (a worker that keeps up holds a handful).
+HIGH_WATER = 10000
+
+
+def endpoint(runtime_dir: str) -> str:
+    return "ipc://" + os.path.join(runtime_dir, EVENTS_SOCKET_NAME)
+
+
+def data_key(interval: str, mode: str, topic: str) -> bytes:
+    """The key of a topic's frames at one interval and bytes mode (topic names hold no ``|``)."""
+    return f"d|{interval}|{mode}|{topic}|".encode()

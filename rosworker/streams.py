@@ -1,0 +1,289 @@
+"""Cyclic subscriptions: the registry, and the ticks that publish their frames once per topic.
+
+Every method runs on the ROS thread.  The ROS worker is the single owner of
+the subscriptions (SOVD "cyclic subscriptions"), so that a POST answered by
+one HTTP worker streams through any other, and the registry survives an HTTP
+worker's restart; it is kept in the restart state too, so it survives the
+ROS worker's.
+
+Cost per topic, not per stream: for each interval class (``fast`` 50 ms,
+``normal`` 200 ms, ``slow`` 500 ms) one timer ticks on a fixed rate; a tick
+takes and converts each watched ``(topic, bytes mode)`` once (the pool
+reuses the converted JSON until a newer message arrives) and publishes one
+frame for it on the events socket (a PUB beside the command ROUTER, see
+``ipc/PROTOCOL.md``), however many streams watch it.  ZeroMQ delivers that
+frame once to each HTTP worker that subscribed to its key; the HTTP worker
+fans it out to its streams.
+
+A tick's frame is what a ``sample`` would answer at that moment, except that
+it never waits: a topic whose first message has not arrived is subscribed
+and gets no frame until the message arrives or ``sample_timeout`` passes
+(then a ``metadata_only``/``timeout`` frame, as a GET would answer).
+
+Control events (``updated``, ``deleted``, ``expired``) and a heartbeat go on
+the same socket, so HTTP workers end or retime their streams at once.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import secrets
+import time
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import zmq
+
+from ipc import events, protocol
+from ipc.errors import IpcError
+from ipc.server import bind_publisher
+
+from .executor import RosExecutor, Timer
+from .pool import TopicPool
+from .stats import Stats
+
+log = logging.getLogger("sovd.rosworker.streams")
+
+HEARTBEAT_EVERY = 1.0
+REPORT_TTL = 5.0    # seconds an HTTP worker's stream counters count as current
+REPORTERS_CAP = 256
+
+
+@dataclass
+class Subscription:
+    id: str
+    collection: str
+    entity_id: str
+    resource: str
+    topic: str
+    bytes: str
+    interval: str
+    duration: int
+    expires_at_ns: int      # wall clock, so that it means the same after a restart
+    created_at_ns: int
+
+    def wire(self) -> dict[str, Any]:
+        """What the ``sub_*`` commands answer (the HTTP side makes the SOVD body of it)."""
+        return {**asdict(self), "key": self.key}
+
+    @property
+    def key(self) -> bytes:
+        return events.data_key(self.interval, self.bytes, self.topic)
+
+
+class _Watch:
+    """A ``(topic, bytes mode)`` watched at one interval: when it was first ticked."""
+
+    __slots__ = ("since", "count")
+
+    def __init__(self):
+        self.since = time.monotonic()
+        self.count = 0
+
+
+class StreamRegistry:
+    def __init__(self, zctx: zmq.Context, runtime_dir: str, executor: RosExecutor, pool: TopicPool,
+                 stats: Stats, *, max_subscriptions: int, max_duration: int, sample_timeout: float):
+        self.zctx = zctx
+        self.runtime_dir = runtime_dir
+        self.executor = executor
+        self.pool = pool
+        self.stats = stats
+        self.max_subscriptions = max_subscriptions
+        self.max_duration = max_duration
+        self.sample_timeout = sample_timeout
+        self.subs: dict[str, Subscription] = {}
+        self.watches: dict[str, dict[tuple[str, str], _Watch]] = {i: {} for i in events.INTERVALS}
+        self._expiry: dict[str, Timer] = {}
+        self._pub: zmq.Socket | None = None
+        self._reports: dict[int, tuple[float, dict[str, int]]] = {}
+        stats.max_subscriptions = max_subscriptions
+
+    # ---- set-up (ROS thread, before the loop) ---------------------------------------------
+    def bind(self) -> None:
+        self._pub = bind_publisher(self.zctx, self.runtime_dir)
+        for interval, seconds in events.INTERVALS.items():
+            self._schedule(interval, time.monotonic() + seconds)
+        self.executor.call_later(0, self._heartbeat)
+
+    def restore(self, saved: list[dict[str, Any]]) -> None:
+        """Subscriptions of a previous worker (restart state); the expired ones are dropped."""
+        now = time.time_ns()
+        for item in saved:
+            try:
+                sub = Subscription(**item)
+            except TypeError:
+                continue
+            if sub.expires_at_ns > now and sub.interval in events.INTERVALS and len(self.subs) < self.max_subscriptions:
+                self._add(sub)
+        if self.subs:
+            log.info("restored %d cyclic subscriptions from before the restart", len(self.subs))
+
+    def saved(self) -> list[dict[str, Any]]:
+        return [asdict(s) for s in self.subs.values()]
+
+    def close(self) -> None:
+        if self._pub is not None:
+            self._send([events.CONTROL_KEY + b"shutdown", protocol.pack({"event": "shutdown"})])
+            self._pub.close(linger=200)
+            self._pub = None
+
+    # ---- commands ---------------------------------------------------------------------------
+    def create(self, collection: str, entity_id: str, resource: str, topic: str, mode: str, interval: str,
+               duration: int) -> dict[str, Any]:
+        if len(self.subs) >= self.max_subscriptions:
+            raise IpcError("subscriptions-full",
+                           f"The gateway already holds {self.max_subscriptions} cyclic subscriptions "
+                           "(max_subscriptions); delete one or retry later",
+                           {"max_subscriptions": self.max_subscriptions})
+        now = time.time_ns()
+        sub = Subscription(id="sub_" + secrets.token_hex(8), collection=collection, entity_id=entity_id,
+                           resource=resource, topic=topic, bytes=mode, interval=interval, duration=duration,
+                           expires_at_ns=now + duration * 10**9, created_at_ns=now)
+        self._add(sub)
+        self.stats.subscriptions_created += 1
+        return sub.wire()
+
+    def get(self, collection: str, entity_id: str, sub_id: str) -> Subscription:
+        """The subscription, if it belongs to this entity (else ``no-such-subscription``)."""
+        sub = self.subs.get(sub_id)
+        if sub is None or sub.collection != collection or sub.entity_id != entity_id:
+            raise IpcError("no-such-subscription", "Subscription not found", {"subscription_id": sub_id})
+        return sub
+
+    def listing(self, collection: str, entity_id: str) -> list[dict[str, Any]]:
+        return [s.wire() for s in sorted(self.subs.values(), key=lambda s: s.created_at_ns)
+                if s.collection == collection and s.entity_id == entity_id]
+
+    def update(self, collection: str, entity_id: str, sub_id: str, interval: str | None,
+               duration: int | None) -> dict[str, Any]:
+        sub = self.get(collection, entity_id, sub_id)
+        self._unwatch(sub)
+        if interval is not None:
+            sub.interval = interval
+        if duration is not None:
+            sub.duration = duration
+            sub.expires_at_ns = time.time_ns() + duration * 10**9
+            self._arm_expiry(sub)
+        self._watch(sub)
+        self._control(sub, "updated")
+        return sub.wire()
+
+    def delete(self, collection: str, entity_id: str, sub_id: str) -> None:
+        self._remove(self.get(collection, entity_id, sub_id), "deleted")
+
+    def report(self, pid: int, counters: dict[str, int]) -> None:
+        """An HTTP worker's stream counters (open, frames sent, frames dropped)."""
+        self._reports[pid] = (time.monotonic(), counters)
+        if len(self._reports) > REPORTERS_CAP:
+            oldest = min(self._reports, key=lambda p: self._reports[p][0])
+            del self._reports[oldest]
+        self._sum_reports()
+
+    # ---- registry -------------------------------------------------------------------------
+    def _add(self, sub: Subscription) -> None:
+        self.subs[sub.id] = sub
+        self._watch(sub)
+        self._arm_expiry(sub)
+        self.stats.active_subscriptions = len(self.subs)
+
+    def _remove(self, sub: Subscription, event: str) -> None:
+        if self.subs.pop(sub.id, None) is None:
+            return
+        self._unwatch(sub)
+        timer = self._expiry.pop(sub.id, None)
+        if timer is not None:
+            timer.cancel()
+        self.stats.active_subscriptions = len(self.subs)
+        self._control(sub, event)
+
+    def _arm_expiry(self, sub: Subscription) -> None:
+        old = self._expiry.pop(sub.id, None)
+        if old is not None:
+            old.cancel()
+        delay = max(0.0, (sub.expires_at_ns - time.time_ns()) / 1e9)
+        self._expiry[sub.id] = self.executor.call_later(delay, lambda: self._expire(sub))
+
+    def _expire(self, sub: Subscription) -> None:
+        if self.subs.get(sub.id) is sub and sub.expires_at_ns <= time.time_ns() + 1_000_000:
+            self.stats.subscriptions_expired += 1
+            self._remove(sub, "expired")
+
+    def _watch(self, sub: Subscription) -> None:
+        watch = self.watches[sub.interval].setdefault((sub.topic, sub.bytes), _Watch())
+        watch.count += 1
+
+    def _unwatch(self, sub: Subscription) -> None:
+        watches = self.watches[sub.interval]
+        watch = watches.get((sub.topic, sub.bytes))
+        if watch is not None:
+            watch.count -= 1
+            if watch.count <= 0:
+                del watches[(sub.topic, sub.bytes)]
+
+    # ---- ticks ----------------------------------------------------------------------------
+    def _schedule(self, interval: str, when: float) -> None:
+        self.executor.call_later(max(0.0, when - time.monotonic()), lambda: self._tick(interval, when))
+
+    def _tick(self, interval: str, scheduled: float) -> None:
+        period = events.INTERVALS[interval]
+        now = time.monotonic()
+        following = scheduled + period
+        if following <= now:  # late by more than a period: skip to the next slot ahead
+            following = now + period - ((now - scheduled) % period)
+        self._schedule(interval, following)
+        watches = self.watches[interval]
+        if not watches or self._pub is None:
+            return
+        stamp = time.time_ns()
+        for (topic, mode), watch in list(watches.items()):
+            self.executor.guarded(f"the {interval} tick of {topic}", self._frame, interval, topic, mode,
+                                  watch, stamp)
+        self.stats.ticks[interval] = self.stats.ticks.get(interval, 0) + 1
+
+    def _frame(self, interval: str, topic: str, mode: str, watch: _Watch, stamp: int) -> None:
+        try:
+            result = self.pool.peek(topic, mode)
+        except IpcError as exc:
+            self._publish(events.data_key(interval, mode, topic), {"ts": stamp, "error": exc.to_wire()})
+            return
+        if result is None:  # subscribed, no first message yet
+            if time.monotonic() - watch.since < self.sample_timeout:
+                return
+            result = self.pool.waiting(topic)
+        meta = {k: v for k, v in result.items() if k != "data_json"}
+        meta["ts"] = stamp
+        self._publish(events.data_key(interval, mode, topic), meta, result["data_json"])
+
+    def _publish(self, key: bytes, meta: dict[str, Any], data: bytes = b"{}") -> None:
+        self._send([key, protocol.pack(meta), data])
+        self.stats.frames_published += 1
+
+    def _control(self, sub: Subscription, event: str) -> None:
+        self._send([events.CONTROL_KEY + sub.id.encode(), protocol.pack({
+            "event": event, "id": sub.id, "key": sub.key, "interval": sub.interval,
+            "expires_in": max(0.0, (sub.expires_at_ns - time.time_ns()) / 1e9)})])
+
+    def _heartbeat(self) -> None:
+        self.executor.call_later(HEARTBEAT_EVERY, self._heartbeat)
+        self._send([events.HEARTBEAT_KEY, protocol.pack({"pid": os.getpid(), "t": time.time_ns()})])
+        self._sum_reports()
+
+    def _send(self, frames: list[bytes]) -> None:
+        if self._pub is None:
+            return
+        try:
+            self._pub.send_multipart(frames, zmq.NOBLOCK, copy=False)
+        except zmq.ZMQError:
+            pass  # PUB never blocks: a subscriber past its high-water mark misses this frame
+
+    def _sum_reports(self) -> None:
+        now = time.monotonic()
+        totals = {"open_streams": 0, "frames_sent": 0, "frames_dropped": 0}
+        for seen, counters in self._reports.values():
+            if now - seen <= REPORT_TTL:
+                totals["open_streams"] += counters.get("open_streams", 0)
+            totals["frames_sent"] += counters.get("frames_sent", 0)
+            totals["frames_dropped"] += counters.get("frames_dropped", 0)
+        self.stats.streams = totals

@@ -1,0 +1,272 @@
+"""Cyclic subscriptions streamed over SSE through a real gateway, from real publishers.
+
+Cadence, payloads equal in shape to a GET, expiry, DELETE and PUT on a live
+stream, a subscription made through one HTTP worker and streamed through the
+other, a slow reader, 200 streams at once.  Faults (a ROS worker SIGKILL mid-
+stream, SIGTERM with open streams) are at the end, each on its own gateway.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import selectors
+import signal
+import time
+
+import psutil
+import pytest
+import requests
+
+from tests.support.gateway import Gateway
+from tests.support.procs import RosNode, poll_until
+from tests.support.sse import EventStream
+
+TOPIC = "/s/temperature"
+APP = "streamer"
+BASE = f"/apps/{APP}/cyclic-subscriptions"
+STAMP = re.compile(r"^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z$")
+
+
+def robot_spec() -> dict:
+    return {"node": APP, "namespace": "/s", "publish": [
+        {"topic": "temperature", "type": "sensor_msgs/msg/Temperature", "rate": 20,
+         "value": {"temperature": 20.5}, "counter": "variance"},
+        {"topic": "camera", "type": "sensor_msgs/msg/Image", "rate": 10,
+         "value": {"height": 480, "width": 640, "encoding": "rgb8", "step": 1920,
+                   "data": {"__fill__": [9, 640 * 480 * 3]}}},
+    ]}
+
+
+def start_gateway(*args: str) -> Gateway:
+    gw = Gateway("--workers", "2", "--log-level", "warning", *args)
+    poll_until(lambda: gw.get(f"/apps/{APP}/data{TOPIC}").json()["x-medkit"]["status"] == "data", 30,
+               message="the robot's data")
+    return gw
+
+
+@pytest.fixture(scope="module")
+def robot():
+    node = RosNode(robot_spec(), timeout=60)
+    yield node
+    node.stop()
+
+
+@pytest.fixture(scope="module")
+def gw(robot):
+    gateway = start_gateway()
+    yield gateway
+    gateway.stop()
+
+
+def subscribe(gw, interval: str = "normal", duration: int = 120, resource: str | None = None) -> dict:
+    r = requests.post(gw.api + BASE, json={"resource": resource or f"/api/v1/apps/{APP}/data{TOPIC}",
+                                           "interval": interval, "duration": duration}, timeout=10)
+    assert r.status_code == 201, r.text
+    return r.json()
+
+
+def open_stream(gw, sub: dict, **kw) -> EventStream:
+    stream = EventStream(gw.port, sub["event_source"], **kw)
+    assert stream.status == 200, stream.body
+    return stream
+
+
+def test_frames_carry_what_a_get_answers_at_each_intervals_cadence(gw):
+    get = gw.get(f"/apps/{APP}/data{TOPIC}").json()
+    for interval, seconds, low, high in (("fast", 2.0, 15, 60), ("normal", 3.0, 6, 22), ("slow", 3.0, 3, 10)):
+        sub = subscribe(gw, interval)
+        with open_stream(gw, sub) as stream:
+            assert stream.headers["content-type"].startswith("text/event-stream")
+            assert stream.headers["cache-control"] == "no-cache"
+            assert stream.headers["x-accel-buffering"] == "no"
+            events = stream.collect(seconds)
+        assert low <= len(events) <= high, (interval, len(events))
+        for event in events:
+            assert STAMP.match(event["timestamp"]), event["timestamp"]
+            payload = event["payload"]
+            assert set(payload) == set(get)
+            assert set(payload["x-medkit"]) == set(get["x-medkit"])
+            assert payload["id"] == TOPIC and payload["x-medkit"]["entity_id"] == APP
+            assert payload["x-medkit"]["status"] == "data"
+            assert set(payload["data"]) == set(get["data"])
+        counters = [e["payload"]["data"]["variance"] for e in events]
+        assert counters == sorted(counters) and counters[-1] > counters[0]   # the latest value, live
+        assert requests.delete(gw.api + f"{BASE}/{sub['id']}", timeout=10).status_code == 204
+
+
+def test_base64_resources_stream_compact_images(gw):
+    sub = subscribe(gw, "normal", resource=f"/api/v1/apps/{APP}/data/s/camera?bytes=base64")
+    with open_stream(gw, sub) as stream:
+        event = stream.next(timeout=10)
+    assert isinstance(event["payload"]["data"]["data"], str)   # one base64 string, not 921,600 integers
+    assert event["payload"]["data"]["width"] == 640
+
+
+def test_expiry_ends_the_stream_and_forgets_the_subscription(gw):
+    sub = subscribe(gw, "fast", duration=2)
+    with open_stream(gw, sub) as stream:
+        assert stream.next(timeout=5) is not None
+        assert stream.ended(timeout=10)
+    assert requests.get(gw.api + f"{BASE}/{sub['id']}", timeout=10).status_code == 404
+    assert all(s["id"] != sub["id"] for s in requests.get(gw.api + BASE, timeout=10).json()["items"])
+
+
+def test_delete_ends_a_live_stream_at_once(gw):
+    sub = subscribe(gw, "slow")
+    with open_stream(gw, sub) as stream:
+        assert stream.next(timeout=5) is not None
+        assert requests.delete(gw.api + f"{BASE}/{sub['id']}", timeout=10).status_code == 204
+        assert stream.ended(timeout=3)
+    assert requests.get(gw.api + f"{BASE}/{sub['id']}", timeout=10).status_code == 404
+
+
+def test_a_new_interval_applies_to_an_open_stream(gw):
+    sub = subscribe(gw, "slow")
+    with open_stream(gw, sub) as stream:
+        slow = stream.collect(2.0)
+        r = requests.put(gw.api + f"{BASE}/{sub['id']}", json={"interval": "fast", "duration": 60}, timeout=10)
+        assert r.status_code == 200 and r.json()["interval"] == "fast" and r.json()["duration"] == 60
+        fast = stream.collect(2.0)
+    assert len(slow) <= 7 and len(fast) >= 15, (len(slow), len(fast))
+    requests.delete(gw.api + f"{BASE}/{sub['id']}", timeout=10)
+
+
+def _worker_of(gw, local_port: int) -> int:
+    """The pid of the HTTP worker holding the connection from ``local_port``."""
+    def find():
+        for child in psutil.Process(gw.pid).children(recursive=True):
+            try:
+                for conn in child.net_connections(kind="tcp"):
+                    if conn.raddr and conn.raddr.port == local_port:
+                        return child.pid
+            except psutil.Error:
+                continue
+        return None
+    return poll_until(find, 5, message="the HTTP worker of a connection")
+
+
+def test_a_subscription_made_through_one_worker_streams_through_another(gw):
+    for _ in range(40):
+        session = requests.Session()
+        r = session.post(gw.api + BASE, json={"resource": f"/api/v1/apps/{APP}/data{TOPIC}",
+                                              "interval": "normal", "duration": 60}, timeout=10)
+        assert r.status_code == 201
+        sub = r.json()
+        made_by = _worker_of(gw, next(iter(session.adapters["http://"].poolmanager.pools.values()))
+                             .pool.queue[-1].sock.getsockname()[1])
+        stream = open_stream(gw, sub)
+        try:
+            streamed_by = _worker_of(gw, stream.local_port)
+            if streamed_by != made_by:
+                event = stream.next(timeout=5)
+                assert event["payload"]["id"] == TOPIC
+                return
+        finally:
+            stream.close()
+            session.close()
+            requests.delete(gw.api + f"{BASE}/{sub['id']}", timeout=10)
+    pytest.fail("every stream landed on the worker that made its subscription")
+
+
+def _rss(gw) -> int:
+    return sum(p.memory_info().rss for p in psutil.Process(gw.pid).children(recursive=True)
+               if "gunicorn" in " ".join(p.cmdline()) and p.ppid() != gw.pid)
+
+
+def test_a_slow_reader_neither_slows_the_others_nor_grows_memory(gw):
+    camera = subscribe(gw, "fast", resource=f"/api/v1/apps/{APP}/data/s/camera?bytes=base64")
+    temperature = subscribe(gw, "normal")
+    dropped_before = gw.get("/health").json()["x-medkit-streams"]["frames_dropped"]
+    stalled = [open_stream(gw, camera, recv_buffer=4096) for _ in range(3)]   # they never read
+    try:
+        rss_before = _rss(gw)
+        with open_stream(gw, temperature) as reader:
+            events = reader.collect(6.0)
+        rss_after = _rss(gw)
+        assert len(events) >= 15, len(events)      # ~30 at normal: not held up by the stalled ones
+        gaps = [b - a for a, b in zip(reader.arrivals, reader.arrivals[1:], strict=False)]
+        assert max(gaps) < 2.0, gaps                # generous: a hang catcher, not a timing test
+        assert rss_after - rss_before < 64 * 2**20, (rss_before, rss_after)
+        poll_until(lambda: gw.get("/health").json()["x-medkit-streams"]["frames_dropped"] > dropped_before,
+                   10, message="dropped frames counted")
+    finally:
+        for s in stalled:
+            s.close()
+        for sub in (camera, temperature):
+            requests.delete(gw.api + f"{BASE}/{sub['id']}", timeout=10)
+
+
+def test_two_hundred_streams_at_once(gw):
+    sub = subscribe(gw, "normal")
+    streams = [open_stream(gw, sub) for _ in range(200)]
+    selector = selectors.DefaultSelector()
+    try:
+        for s in streams:
+            s.sock.setblocking(False)
+            selector.register(s.sock, selectors.EVENT_READ, s)
+        started = time.monotonic()
+        health_times = []
+        while time.monotonic() - started < 4.0:
+            for key, _ in selector.select(timeout=0.2):
+                stream = key.data
+                try:
+                    data = stream.sock.recv(65536)
+                except BlockingIOError:
+                    continue
+                stream._raw += data
+                stream._dechunk()
+                stream._parse()
+            if len(health_times) < 4 and time.monotonic() - started > len(health_times):
+                t = time.monotonic()
+                assert gw.get("/health", timeout=5).status_code == 200
+                health_times.append(time.monotonic() - t)
+        counts = sorted(len(s.events) for s in streams)
+        assert counts[0] >= 8, counts[:10]                # ~20 each at normal over 4 s
+        assert max(health_times) < 2.0, health_times      # a hang catcher
+        poll_until(lambda: gw.get("/health").json()["x-medkit-streams"]["open_streams"] >= 200, 10,
+                   message="the open streams counted in /health")
+    finally:
+        for s in streams:
+            s.close()
+        requests.delete(gw.api + f"{BASE}/{sub['id']}", timeout=10)
+
+
+def test_streams_go_on_through_a_ros_worker_sigkill(robot):
+    gw = start_gateway()
+    try:
+        sub = subscribe(gw, "normal")
+        with open_stream(gw, sub) as stream:
+            assert "payload" in stream.next(timeout=5)
+            os.kill(gw.rosworker_pid(), signal.SIGKILL)
+            error = poll_until(lambda: (lambda e: e if e and "error" in e else None)(stream.next(timeout=10)),
+                               15, interval=0, message="an error frame")
+            assert error["error"]["vendor_code"] == "x-medkit-ros-worker-unavailable"
+            assert STAMP.match(error["timestamp"])
+            back = poll_until(lambda: (lambda e: e if e and "payload" in e else None)(stream.next(timeout=30)),
+                              60, interval=0, message="data frames after the restart")
+            assert back["payload"]["x-medkit"]["status"] in ("data", "metadata_only")
+        assert requests.get(gw.api + f"{BASE}/{sub['id']}", timeout=10).status_code == 200  # it survived
+    finally:
+        gw.stop()
+
+
+def test_sigterm_ends_every_open_stream_cleanly(robot):
+    gw = start_gateway()
+    children = psutil.Process(gw.pid).children(recursive=True)
+    sub = subscribe(gw, "normal")
+    streams = [open_stream(gw, sub) for _ in range(6)]
+    try:
+        for s in streams:
+            assert s.next(timeout=5) is not None
+        gw.signal(signal.SIGTERM)
+        for s in streams:
+            assert s.ended(timeout=15)
+            last = s.events[-1]
+            assert last["error"]["vendor_code"] == "x-medkit-gateway-shutdown", last
+        assert gw.proc.wait(30) == 0
+        assert not [c for c in children if c.is_running() and c.status() != psutil.STATUS_ZOMBIE]
+    finally:
+        for s in streams:
+            s.close()
+        gw.stop()
