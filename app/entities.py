@@ -12,7 +12,10 @@ or to ROS, so every rule of ``rest-contract.md`` is unit-testable:
 - one function per first namespace segment (``root`` for the root namespace),
   hosting the apps below it;
 - an app's data items are its node's topics (published and subscribed); a
-  component's or function's are the union over its apps.
+  component's or function's are the union over its apps;
+- relations (:data:`RELATIONS`, medkit's HATEOAS collections): a component
+  hosts its apps, a function hosts the apps below its namespace, an app is
+  located on the host; nothing has subcomponents, dependencies or an area.
 """
 
 from __future__ import annotations
@@ -35,7 +38,27 @@ KINDS = {
     "functions": ("function", "Function"),
 }
 COLLECTIONS = tuple(KINDS)
+# collection -> name of its id in paths, OpenAPI and medkit's typed error parameters
+PARAM_NAMES = {"areas": "area_id", "components": "component_id", "apps": "app_id",
+               "functions": "function_id"}
+# Where medkit looks for an id of the wrong type (``get_entity_info`` without a type).
+WRONG_TYPE_ORDER = ("components", "apps", "areas", "functions")
 ROOT_FUNCTION = "root"
+
+# The relation collections medkit serves under an entity:
+# (owner collection, relation) -> (collection of the listed entities, ``_links`` name of the owner).
+RELATIONS = {
+    ("areas", "components"): ("components", "area"),
+    ("areas", "contains"): ("components", "area"),
+    ("areas", "subareas"): ("areas", "parent"),
+    ("components", "subcomponents"): ("components", "parent"),
+    ("components", "hosts"): ("apps", "component"),
+    ("components", "depends-on"): ("components", "component"),
+    ("apps", "is-located-on"): ("components", "app"),
+    ("apps", "belongs-to"): ("areas", "app"),
+    ("apps", "depends-on"): ("apps", "app"),
+    ("functions", "hosts"): ("apps", "function"),
+}
 
 
 # --------------------------------------------------------------------------- host
@@ -145,21 +168,48 @@ class Entity:
         return item
 
     def detail(self) -> dict[str, Any]:
-        data_href = self.href + "/data"
+        """The entity detail with medkit's URIs, ``capabilities`` and ``_links``.
+
+        Only what this gateway serves is linked: ``data`` and the relation
+        collections.  As in medkit, ``depends-on`` is linked only when there are
+        dependencies (never, in runtime discovery) and an app's ``belongs-to``
+        only when it has a host component; a function's ``hosts`` is the URI of
+        its hosts collection (the app ids are in ``x-medkit.hosts``).
+        """
+        base = self.href
         body: dict[str, Any] = {"id": self.id, "name": self.name, "type": self.type}
         if self.description is not None:
             body["description"] = self.description
-        body["data"] = data_href
-        links = {"self": self.href, "collection": f"{API_BASE}/{self.collection}"}
-        if self.component_id is not None:
-            located = f"{API_BASE}/components/{self.component_id}"
-            body["is-located-on"] = located
-            links["is-located-on"] = located
-        if self.hosts is not None:
-            body["hosts"] = list(self.hosts)
-        body["capabilities"] = [{"name": "data", "href": data_href}]
+        links = {"self": base, "collection": f"{API_BASE}/{self.collection}"}
+        caps: list[str]
+        ext = dict(self.x_medkit)
+        if self.collection == "areas":
+            body.update(subareas=base + "/subareas", components=base + "/components",
+                        contains=base + "/contains", data=base + "/data")
+            caps = ["subareas", "contains", "data"]
+        elif self.collection == "components":
+            body.update(data=base + "/data", subcomponents=base + "/subcomponents", hosts=base + "/hosts")
+            caps = ["data", "subcomponents", "hosts"]
+        elif self.collection == "apps":
+            body["data"] = base + "/data"
+            caps = ["data"]
+            if self.component_id is not None:
+                located = f"{API_BASE}/components/{self.component_id}"
+                body["is-located-on"] = located
+                body["belongs-to"] = base + "/belongs-to"
+                links["is-located-on"] = located
+                links["belongs-to"] = base + "/belongs-to"
+                caps += ["is-located-on", "belongs-to"]
+        else:
+            body.update(hosts=base + "/hosts", data=base + "/data")
+            caps = ["hosts", "data"]
+            ext["hosts"] = list(self.hosts or [])
+        capabilities = [{"name": name, "href": f"{base}/{name}"} for name in caps]
+        if self.collection == "components":
+            ext["capabilities"] = capabilities  # medkit repeats them there for x-medkit-only tools
+        body["capabilities"] = capabilities
         body["_links"] = links
-        body["x-medkit"] = self.x_medkit
+        body["x-medkit"] = ext
         return body
 
 
@@ -175,10 +225,28 @@ class Entities:
 
     def elsewhere(self, collection: str, entity_id: str) -> Entity | None:
         """The entity with this id in another collection (for the wrong-type error)."""
-        for name in COLLECTIONS:
+        for name in WRONG_TYPE_ORDER:
             if name != collection and entity_id in self.collections[name]:
                 return self.collections[name][entity_id]
         return None
+
+    def related(self, owner: Entity, relation: str) -> list[Entity]:
+        """The entities of ``owner``'s relation collection (see :data:`RELATIONS`)."""
+        target = RELATIONS[(owner.collection, relation)][0]
+        if (owner.collection, relation) in (("components", "hosts"), ("functions", "hosts")):
+            ids = owner.app_ids
+        elif relation == "is-located-on":
+            ids = [owner.component_id] if owner.component_id else []
+        else:
+            ids = []  # runtime discovery knows no areas, subcomponents or dependencies
+        return [e for e in (self.get(target, i) for i in ids) if e is not None]
+
+    def relation_body(self, owner: Entity, relation: str) -> dict[str, Any]:
+        """The body of ``GET {owner}/{relation}``: medkit's items, total and ``_links``."""
+        items = [e.listing_item() for e in self.related(owner, relation)]
+        owner_link = RELATIONS[(owner.collection, relation)][1]
+        return {"items": items, "x-medkit": {"total_count": len(items)},
+                "_links": {"self": f"{owner.href}/{relation}", owner_link: owner.href}}
 
     def listing(self, collection: str) -> list[Entity]:
         return [self.collections[collection][k] for k in sorted(self.collections[collection])]

@@ -104,7 +104,7 @@ def _handle_http(exc: HTTPException) -> Response | HTTPException:
     params: dict[str, Any] = {}
     headers: dict[str, str] = {}
     if status == 404:
-        params["path"] = request.path
+        params.update(status=404, path=request.path)  # medkit's unmatched route: parameters.status
     elif status == 405:
         allowed = sorted(getattr(exc, "valid_methods", None) or [])
         params.update({"method": request.method, "allowed_methods": allowed})

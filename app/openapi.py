@@ -3,6 +3,15 @@
 It is also the single list the root overview (``GET /api/v1/``) takes its
 ``endpoints`` from, so the two cannot disagree.  Schemas are JSON Schema
 2020-12 (OpenAPI 3.1), and the test suite validates real responses against them.
+
+Names that generated clients see are medkit's (its published spec): the tags
+(``Server``, ``Discovery``, ``Data``), the ``operationId``s (``listApps``,
+``getAppDataItem``, ``listComponentHosts`` ...), the schema names
+(``ComponentList``, ``AppDetail``, ``DataValue`` ...) and one error response,
+``components.responses.GenericError``, that every error status refers to
+(each with its own description).  :func:`scoped_document` narrows the document
+to one part of the tree (``GET /{collection}/docs`` and below, medkit's
+``docs`` capability).
 """
 
 from __future__ import annotations
@@ -10,11 +19,10 @@ from __future__ import annotations
 from functools import lru_cache
 from typing import Any
 
-from .entities import API_BASE, COLLECTIONS
+from .entities import API_BASE, COLLECTIONS, KINDS, PARAM_NAMES, RELATIONS
 
+SOVD_VERSION = "1.0.0"
 ENTITY_ID = {"type": "string", "pattern": "^[A-Za-z0-9_-]{1,256}$"}
-PARAM_NAMES = {"areas": "area_id", "components": "component_id", "apps": "app_id",
-               "functions": "function_id"}
 STR = {"type": "string"}
 INT = {"type": "integer"}
 OBJ = {"type": "object"}
@@ -31,36 +39,70 @@ def _obj(required: list[str], **props: Any) -> dict[str, Any]:
             "properties": {k.replace("__", "-").replace("X_", "x-"): v for k, v in props.items()}}
 
 
+def _title(collection: str) -> str:
+    """``Component`` for ``components``: medkit's schema-name stem."""
+    return KINDS[collection][1]
+
+
+LINKS = {"type": "object", "required": ["self"], "properties": {"self": STR},
+         "additionalProperties": STR, "description": "HATEOAS links: `self` and the owning entity"}
+CAPABILITIES = {"type": "array", "items": _obj(["name", "href"], name=STR, href=STR)}
+X_MEDKIT_ENTITY = {
+    "areas": _obj([], source=STR),
+    "components": _obj(["source"], source={"enum": ["runtime"]},
+                       capabilities={**CAPABILITIES, "description": "detail only: the capabilities again"}),
+    "apps": _obj(["source", "is_online", "component_id", "ros2"], source={"enum": ["heuristic"]},
+                 is_online={"type": "boolean"}, component_id=ENTITY_ID, ros2=ref("XMedkitRos2")),
+    "functions": _obj(["source"], source={"enum": ["runtime"]},
+                      hosts={**STR_LIST, "description": "detail only: the ids of the apps it hosts"}),
+}
+# Detail URIs of what the gateway serves, per collection: (required, optional).
+DETAIL_URIS = {
+    "areas": (["subareas", "components", "contains", "data"], []),
+    "components": (["data", "subcomponents", "hosts"], []),
+    "apps": (["data"], ["is-located-on", "belongs-to"]),
+    "functions": (["hosts", "data"], []),
+}
+
+
+def _entity_schemas() -> dict[str, Any]:
+    """``XMedkit<Kind>``, ``<Kind>ListItem``, ``<Kind>List`` and ``<Kind>Detail`` per collection."""
+    out: dict[str, Any] = {
+        "XMedkitRos2": _obj(["node"], node={**STR, "description": "fully qualified ROS node name"}),
+        "XMedkitCollection": _obj(["total_count"], total_count=INT),
+    }
+    for collection in COLLECTIONS:
+        kind, name = KINDS[collection][0], _title(collection)
+        out[f"XMedkit{name}"] = X_MEDKIT_ENTITY[collection]
+        item = _obj(["id", "name", "href", "type", "x-medkit"], id=ENTITY_ID, name=STR,
+                    href={"type": "string", "pattern": f"^{API_BASE}/{collection}/"},
+                    type={"const": kind}, description=STR, X_medkit=ref(f"XMedkit{name}"))
+        if collection == "functions":
+            item["properties"]["hosts"] = {**STR_LIST, "description": "the ids of the apps it hosts"}
+        out[f"{name}ListItem"] = item
+        out[f"{name}List"] = _obj(["items", "x-medkit"], items={"type": "array", "items": ref(f"{name}ListItem")},
+                                  X_medkit=ref("XMedkitCollection"), _links=LINKS)
+        required, optional = DETAIL_URIS[collection]
+        uris = {key: {"type": "string", "pattern": f"^{API_BASE}/"} for key in required + optional}
+        detail = _obj(["id", "name", "type", *required, "capabilities", "_links", "x-medkit"],
+                      id=ENTITY_ID, name=STR, type={"const": kind}, description=STR,
+                      capabilities=CAPABILITIES,
+                      _links={**LINKS, "required": ["self", "collection"]},
+                      X_medkit=ref(f"XMedkit{name}"))
+        detail["properties"].update(uris)
+        out[f"{name}Detail"] = detail
+    return out
+
+
 SCHEMAS: dict[str, Any] = {
-    "Error": {
+    "GenericError": {
         **_obj(["error_code", "message"], error_code=STR,
                vendor_code={"type": "string", "pattern": "^x-medkit-"}, message=STR,
                parameters={"type": "object", "minProperties": 1}),
         "additionalProperties": False,
         "description": "SOVD GenericError. `vendor_code` is present when `error_code` is `vendor-error`.",
     },
-    "EntityItem": _obj(
-        ["id", "name", "href", "type", "x-medkit"], id=ENTITY_ID, name=STR,
-        href={"type": "string", "pattern": f"^{API_BASE}/(areas|components|apps|functions)/"},
-        type={"enum": ["area", "component", "app", "function"]}, description=STR,
-        hosts={**STR_LIST, "description": "functions: the ids of the apps they host"},
-        X_medkit=_obj(["source"], source={"enum": ["runtime", "heuristic"]}, is_online={"type": "boolean"},
-                      component_id=ENTITY_ID, ros2=_obj(["node"], node=STR)),
-    ),
-    "EntityListing": _obj(["items", "x-medkit"], items={"type": "array", "items": ref("EntityItem")},
-                          X_medkit=_obj(["total_count"], total_count=INT)),
-    "EntityDetail": _obj(
-        ["id", "name", "type", "data", "capabilities", "_links", "x-medkit"],
-        id=ENTITY_ID, name=STR, type={"enum": ["area", "component", "app", "function"]},
-        description=STR, data={**STR, "description": "URI of the entity's data items"},
-        is__located__on={**STR, "description": "apps: URI of the host component"},
-        hosts=STR_LIST,
-        capabilities={"type": "array", "items": _obj(["name", "href"], name=STR, href=STR)},
-        _links=_obj(["self", "collection"], self=STR, collection=STR, is__located__on=STR),
-        X_medkit=OBJ,
-    ),
-    "IsLocatedOn": _obj(["items"], items={"type": "array", "items": ref("EntityItem"),
-                                          "minItems": 1, "maxItems": 1}),
+    **_entity_schemas(),
     "DataItem": _obj(
         ["id", "name", "category", "x-medkit"], id=STR, name=STR, category={"const": "currentData"},
         X_medkit=_obj(
@@ -72,13 +114,13 @@ SCHEMAS: dict[str, Any] = {
             member_ids={**STR_LIST, "description": "components and functions: apps using the topic"},
         ),
     ),
-    "DataListing": _obj(
+    "DataList": _obj(
         ["items", "x-medkit"], items={"type": "array", "items": ref("DataItem")},
         X_medkit=_obj(["entity_id", "total_count"], entity_id=ENTITY_ID, total_count=INT,
-                      aggregated={"const": True}, aggregation_sources=STR_LIST,
+                      aggregated={"type": "boolean", "enum": [True]}, aggregation_sources=STR_LIST,
                       aggregation_level={"enum": ["component", "function", "area"]}),
     ),
-    "DataSample": _obj(
+    "DataValue": _obj(
         ["id", "data", "x-medkit"], id=STR,
         data={**OBJ, "description": "the message, fields with their ROS names and real types; "
                                     "{} without data"},
@@ -92,11 +134,11 @@ SCHEMAS: dict[str, Any] = {
                              "evicted", "shutdown"], "description": "only with metadata_only"},
         ),
     ),
-    "PublishRequest": _obj(["type", "data"],
+    "DataWriteRequest": _obj(["type", "data"],
                            type={"type": "string", "pattern": "^[A-Za-z][A-Za-z0-9_]*/msg/[A-Za-z][A-Za-z0-9_]*$",
                                  "examples": ["std_msgs/msg/Float32"]},
                            data={**OBJ, "examples": [{"data": 50.0}]}),
-    "PublishResponse": _obj(
+    "DataWriteResult": _obj(
         ["id", "data", "x-medkit"], id=STR, data=OBJ,
         X_medkit=_obj(["ros2", "entity_id", "status", "subscriber_count", "unmatched_subscriber_count"],
                       ros2=_obj(["topic", "type"], topic=STR, type=STR),
@@ -106,7 +148,7 @@ SCHEMAS: dict[str, Any] = {
                                                   "reach (another QoS or message-type version)"},
                       warning={**STR, "description": "only when unmatched_subscriber_count > 0"}),
     ),
-    "Health": _obj(
+    "HealthStatus": _obj(
         ["status", "timestamp", "discovery", "x-medkit-data-provider", "x-medkit-subscription-executor"],
         status={"enum": ["healthy", "degraded", "unhealthy"],
                 "description": "unhealthy: the ROS worker is down or not answering; degraded: one of "
@@ -144,128 +186,190 @@ SCHEMAS: dict[str, Any] = {
         vendor_info=_obj(["name", "version"], name=STR, version=STR))}),
 }
 
-RETRY_AFTER = {"Retry-After": {"description": "seconds to wait before retrying", "schema": INT}}
-RESPONSES: dict[str, Any] = {
-    "BadRequest": ("Invalid entity ID (`invalid-parameter`, parameters `details`, `entity_id`), an id of "
-                   "another entity type (`expected_type`, `actual_type`), an invalid topic name or "
-                   "query parameter (`invalid-parameter`), or an invalid body (`invalid-request`)"),
-    "NotFound": "Unknown entity (`entity-not-found`, parameters `entity_id`)",
-    "Unavailable": ("The ROS worker is down or restarting (`vendor-error`, "
-                    "`x-medkit-ros-worker-unavailable`), busy (`x-medkit-ros-worker-backpressure`), "
-                    "shutting down (`x-medkit-gateway-shutdown`), every pooled topic waits for its first "
-                    "message (`x-medkit-pool-busy`), or too many callers wait on cold topics "
-                    "(`x-medkit-cold-wait-cap-exceeded`, parameters `topic`, `cold_wait_cap`, `entity_id`, "
-                    "`topic_name`); retry after `Retry-After` seconds"),
-    "NotResponding": "The ROS worker did not answer in time (`not-responding`)",
-    "BadGateway": ("The newest message on the topic cannot be decoded as its type (`vendor-error`, "
-                   "`x-medkit-message-undecodable`, parameters `topic`, `type`): its publisher may be "
-                   "built against another version of the message package"),
-    "Error": "Error (`internal-error`, or `vendor-error` with a `vendor_code`)",
+# Descriptions of the error statuses, by status; every one refers to components.responses.GenericError.
+ERRORS: dict[str, str] = {
+    "400": ("Invalid entity ID (`invalid-parameter`, parameters `details`, `entity_id`), an id of "
+            "another entity type (`Invalid entity type for route: expected App, got Component`, "
+            "parameters `entity_id`, `expected_type`, `actual_type`), an invalid topic name or "
+            "query parameter (`invalid-parameter`), or an invalid body (`invalid-request`)"),
+    "404": "Unknown entity (`entity-not-found`, `Entity not found`, parameters `entity_id`)",
+    "500": "Error (`internal-error`, or `vendor-error` with a `vendor_code`)",
+    "502": ("The newest message on the topic cannot be decoded as its type (`vendor-error`, "
+            "`x-medkit-message-undecodable`, parameters `topic`, `type`): its publisher may be "
+            "built against another version of the message package"),
+    "503": ("The ROS worker is down or restarting (`vendor-error`, "
+            "`x-medkit-ros-worker-unavailable`), busy (`x-medkit-ros-worker-backpressure`), "
+            "shutting down (`x-medkit-gateway-shutdown`), every pooled topic waits for its first "
+            "message (`x-medkit-pool-busy`), or too many callers wait on cold topics "
+            "(`x-medkit-cold-wait-cap-exceeded`, parameters `topic`, `cold_wait_cap`, `entity_id`, "
+            "`topic_name`); retry after `Retry-After` seconds"),
+    "504": "The ROS worker did not answer in time (`not-responding`)",
+    "default": "Error (`internal-error`, or `vendor-error` with a `vendor_code`)",
+}
+GENERIC_ERROR = {
+    "description": "SOVD GenericError response",
+    "headers": {
+        "Retry-After": {"description": "on a 503 worth retrying: seconds to wait", "required": False,
+                        "schema": INT},
+        "WWW-Authenticate": {"description": "on a 401", "required": False, "schema": STR},
+    },
+    "content": {"application/json": {"schema": ref("GenericError")}},
 }
 
 
-def _error(description: str, headers: dict | None = None) -> dict[str, Any]:
-    out: dict[str, Any] = {"description": description,
-                           "content": {"application/json": {"schema": ref("Error")}}}
-    if headers:
-        out["headers"] = headers
-    return out
+def _error(description: str) -> dict[str, Any]:
+    """An error response: ``components.responses.GenericError`` with its own description."""
+    return {"$ref": "#/components/responses/GenericError", "description": description}
 
 
 def _ok(schema: str, description: str = "OK") -> dict[str, Any]:
     return {"description": description, "content": {"application/json": {"schema": ref(schema)}}}
 
 
-def _resp(name: str) -> dict[str, str]:
-    return {"$ref": f"#/components/responses/{name}"}
+def _op(op_id: str, tag: str, summary: str, ok: dict | None, *errors: str | tuple[str, str],
+        **extra: Any) -> dict[str, Any]:
+    """One operation; ``errors`` are statuses (described from :data:`ERRORS`) or (status, description)."""
+    responses: dict[str, Any] = {"200": ok} if ok is not None else {}
+    for err in errors:
+        status, text = err if isinstance(err, tuple) else (err, ERRORS[err])
+        responses[status] = _error(text)
+    responses["default"] = _error(ERRORS["default"])
+    return {"operationId": op_id, "tags": [tag], "summary": summary, "responses": responses, **extra}
 
 
-def _op(op_id: str, summary: str, ok: dict, *errors: str, **extra: Any) -> dict[str, Any]:
-    responses = {"200": ok}
-    for status in errors:
-        responses[status] = _resp({"400": "BadRequest", "404": "NotFound", "502": "BadGateway",
-                                   "503": "Unavailable", "504": "NotResponding"}.get(status, "Error"))
-    responses["default"] = _resp("Error")
-    return {"operationId": op_id, "summary": summary, "responses": responses, **extra}
+def _id_param(collection: str) -> dict[str, Any]:
+    return {"name": PARAM_NAMES[collection], "in": "path", "required": True, "schema": ENTITY_ID}
 
 
 def _entity_paths(collection: str) -> dict[str, Any]:
     name = PARAM_NAMES[collection]
     kind = collection[:-1]
+    title = _title(collection)
     base = f"/{collection}/{{{name}}}"
-    id_param = {"name": name, "in": "path", "required": True, "schema": ENTITY_ID}
+    id_param = _id_param(collection)
     data_param = {"name": "data_id", "in": "path", "required": True, "schema": STR,
                   "description": ("ROS topic. May span several path segments and be percent-encoded: "
                                   "`powertrain%2Fengine%2Ftemperature`, `powertrain/engine/temperature` "
                                   "and `/powertrain/engine/temperature` (written `data//powertrain/...`) "
-                                  "all name `/powertrain/engine/temperature`.")}
+                                  "all name `/powertrain/engine/temperature`. A topic `/docs` is read as "
+                                  "`data//docs`: `data/docs` is the scoped OpenAPI document.")}
     bytes_param = {"name": "bytes", "in": "query", "required": False,
                    "schema": {"enum": ["array", "base64"], "default": "array"},
                    "description": "how byte and uint8 arrays are sent: arrays of integers (default) "
                                   "or base64 strings"}
-    not_impl = {"description": "Not implemented for ROS 2 (`not-implemented`)",
-                "content": {"application/json": {"schema": ref("Error")}}}
-    put_errors = {
-        "401": _error("An API token is configured and the request has none (`unauthorized`)",
-                      {"WWW-Authenticate": {"schema": STR}}),
-        "403": _error("Publishing is disabled (`--allow-publish` not given) or the token is wrong "
-                      "(`forbidden`)"),
-        "413": _error("Request body larger than `max_body_bytes` (`payload-too-large`)"),
-    }
-    put_op = _op(f"put_{kind}_data_item", f"Publish one message to a topic through a {kind}",
-                 _ok("PublishResponse", "Published"), "400", "404", "500", "503", "504",
+    not_impl = ("501", "Not implemented for ROS 2 (`not-implemented`)")
+    put_op = _op(f"put{title}DataItem", "Data", f"Publish one message to a topic through a {kind}",
+                 _ok("DataWriteResult", "Published"), "400",
+                 ("401", "An API token is configured and the request has none (`unauthorized`)"),
+                 ("403", "Publishing is disabled (`--allow-publish` not given) or the token is wrong "
+                         "(`forbidden`)"),
+                 "404", ("413", "Request body larger than `max_body_bytes` (`payload-too-large`)"),
+                 "500", "503", "504",
                  parameters=[id_param, data_param],
                  requestBody={"required": True,
-                              "content": {"application/json": {"schema": ref("PublishRequest")}}},
+                              "content": {"application/json": {"schema": ref("DataWriteRequest")}}},
                  security=[{"bearerAuth": []}, {}])
-    put_op["responses"].update(put_errors)
     return {
-        f"/{collection}": {"get": _op(f"list_{collection}", f"List {collection}", _ok("EntityListing"),
-                                      "503", "504")},
-        base: {"get": _op(f"get_{kind}", f"Get one {kind}", _ok("EntityDetail"), "400", "404", "503", "504",
-                          parameters=[id_param])},
-        base + "/data": {"get": _op(f"list_{kind}_data", f"Data items of a {kind} (metadata only)",
-                                    _ok("DataListing"), "400", "404", "503", "504", parameters=[id_param])},
+        f"/{collection}": {"get": _op(f"list{title}s", "Discovery", f"List {collection}",
+                                      _ok(f"{title}List"), "503", "504")},
+        base: {"get": _op(f"get{title}", "Discovery", f"Get one {kind}", _ok(f"{title}Detail"),
+                          "400", "404", "503", "504", parameters=[id_param])},
+        base + "/data": {"get": _op(f"list{title}Data", "Data", f"Data items of a {kind} (metadata only)",
+                                    _ok("DataList"), "400", "404", "503", "504", parameters=[id_param])},
         base + "/data/{data_id}": {
-            "get": _op(f"get_{kind}_data_item", f"Read one sample of a topic through a {kind}",
-                       _ok("DataSample"), "400", "404", "502", "503", "504",
+            "get": _op(f"get{title}DataItem", "Data", f"Read one sample of a topic through a {kind}",
+                       _ok("DataValue"), "400", "404", "502", "503", "504",
                        parameters=[id_param, data_param, bytes_param]),
             "put": put_op,
         },
-        base + "/data-categories": {"get": _op(f"get_{kind}_data_categories", "Data categories",
-                                               not_impl, parameters=[id_param])},
-        base + "/data-groups": {"get": _op(f"get_{kind}_data_groups", "Data groups", not_impl,
+        base + "/data-categories": {"get": _op(f"list{title}DataCategories", "Data", "Data categories",
+                                               None, not_impl, parameters=[id_param])},
+        base + "/data-groups": {"get": _op(f"list{title}DataGroups", "Data", "Data groups", None, not_impl,
                                            parameters=[id_param])},
     }
+
+
+# medkit's operationIds of the relation collections.
+RELATION_OPS = {
+    ("areas", "components"): ("listAreaComponents", "Components in an area"),
+    ("areas", "contains"): ("listAreaContains", "Components contained in an area and its subareas"),
+    ("areas", "subareas"): ("listSubareas", "Subareas of an area"),
+    ("components", "subcomponents"): ("listSubcomponents", "Subcomponents of a component"),
+    ("components", "hosts"): ("listComponentHosts", "Apps hosted on a component"),
+    ("components", "depends-on"): ("listComponentDependencies", "Components a component depends on"),
+    ("apps", "is-located-on"): ("getAppHost", "The component an app runs on"),
+    ("apps", "belongs-to"): ("getAppArea", "The area of the app's host component"),
+    ("apps", "depends-on"): ("listAppDependencies", "Apps an app depends on"),
+    ("functions", "hosts"): ("listFunctionHosts", "Apps that host a function"),
+}
+
+
+def _relation_paths() -> dict[str, Any]:
+    paths: dict[str, Any] = {}
+    for (collection, relation), (target, _) in RELATIONS.items():
+        op_id, summary = RELATION_OPS[(collection, relation)]
+        title, param = _title(collection), PARAM_NAMES[collection]
+        if collection == "apps":  # medkit checks these like an entity detail
+            errors: tuple = ("400", "404")
+        else:
+            errors = (("400", f"Invalid {title.lower()} ID (`invalid-parameter`, parameters `details`, "
+                              f"`{param}`)"),
+                      ("404", f"{title} not found (`entity-not-found`, parameters `{param}`); an id of "
+                              f"another entity type is not found here either"))
+        paths[f"/{collection}/{{{param}}}/{relation}"] = {"get": _op(
+            op_id, "Discovery", summary, _ok(f"{_title(target)}List"), *errors, "503", "504",
+            parameters=[_id_param(collection)])}
+    return paths
+
+
+DOC = {"description": "OpenAPI 3.1 document", "content": {"application/json": {"schema": OBJ}}}
+
+
+def _docs_paths() -> dict[str, Any]:
+    """The scoped documents (``/docs`` itself is with the server routes)."""
+    doc = DOC
+    no_doc = ("404", "No such entity (`resource-not-found`, `No capability description available for "
+                     "the requested path`)")
+    paths: dict[str, Any] = {}
+    for collection in COLLECTIONS:
+        title, param = _title(collection), PARAM_NAMES[collection]
+        paths[f"/{collection}/docs"] = {"get": _op(
+            f"get{title}sDocs", "Server", f"This document narrowed to /{collection}", doc)}
+        paths[f"/{collection}/{{{param}}}/docs"] = {"get": _op(
+            f"get{title}Docs", "Server", f"This document narrowed to one {collection[:-1]}", doc, no_doc,
+            "503", "504", parameters=[_id_param(collection)])}
+        paths[f"/{collection}/{{{param}}}/data/docs"] = {"get": _op(
+            f"get{title}DataDocs", "Server", f"This document narrowed to the data of one {collection[:-1]}",
+            doc, no_doc, "503", "504", parameters=[_id_param(collection)])}
+    return paths
 
 
 @lru_cache(maxsize=1)
 def _document() -> dict[str, Any]:
     paths: dict[str, Any] = {
-        "/": {"get": _op("get_root", "Gateway overview", _ok("RootOverview"))},
-        "/version-info": {"get": _op("get_version_info", "SOVD version information", _ok("VersionInfo"))},
-        "/health": {"get": _op("get_health", "Liveness and ROS worker counters; always 200, never "
-                                             "waits on ROS work", _ok("Health"))},
-        "/docs": {"get": _op("get_docs", "This OpenAPI document",
-                             {"description": "OpenAPI 3.1 document",
-                              "content": {"application/json": {"schema": OBJ}}})},
+        "/": {"get": _op("getRoot", "Server", "Gateway overview", _ok("RootOverview"))},
+        "/version-info": {"get": _op("getVersionInfo", "Server", "SOVD version information",
+                                     _ok("VersionInfo"))},
+        "/health": {"get": _op("getHealth", "Server", "Liveness and ROS worker counters; always 200, "
+                                                      "never waits on ROS work", _ok("HealthStatus"))},
+        "/docs": {"get": _op("getDocs", "Server", "This OpenAPI document", DOC)},
     }
     for collection in COLLECTIONS:
         paths.update(_entity_paths(collection))
-    paths["/apps/{app_id}/is-located-on"] = {"get": _op(
-        "get_app_is_located_on", "The component an app runs on", _ok("IsLocatedOn"), "400", "404", "503",
-        "504", parameters=[{"name": "app_id", "in": "path", "required": True, "schema": ENTITY_ID}])}
-    responses = {name: _error(text, RETRY_AFTER if name == "Unavailable" else None)
-                 for name, text in RESPONSES.items()}
+    paths.update(_relation_paths())
+    paths.update(_docs_paths())
     return {
         "openapi": "3.1.0",
-        "info": {"title": "sovd-gateway", "version": "1.0.0",
+        "info": {"title": "sovd-gateway", "version": "1.0.0", "x-sovd-version": SOVD_VERSION,
                  "description": "SOVD REST gateway for ROS 2: discovery and live topic data."},
         "jsonSchemaDialect": "https://json-schema.org/draft/2020-12/schema",
         "servers": [{"url": API_BASE}],
+        "tags": [{"name": "Server", "description": "Gateway health, metadata, version info and docs"},
+                 {"name": "Discovery", "description": "Entity discovery and hierarchy navigation"},
+                 {"name": "Data", "description": "Read and write ROS 2 topic data"}],
         "paths": paths,
         "components": {
-            "schemas": SCHEMAS, "responses": responses,
+            "schemas": SCHEMAS, "responses": {"GenericError": GENERIC_ERROR},
             "securitySchemes": {"bearerAuth": {"type": "http", "scheme": "bearer",
                                                "description": "required for PUT when an API token is set"}},
         },
@@ -274,6 +378,50 @@ def _document() -> dict[str, Any]:
 
 def document() -> dict[str, Any]:
     return _document()
+
+
+def scoped_document(collection: str, entity_id: str | None = None, *, data: bool = False,
+                    data_ids: list[str] | tuple[str, ...] = ()) -> dict[str, Any]:
+    """The document narrowed to one part of the tree, as medkit's ``docs`` capability serves it.
+
+    ``/{collection}/docs``: the paths under ``/{collection}`` as templates.
+    ``/{collection}/{id}/docs``: the paths under that entity, with its id filled
+    in (and its path parameter gone).  ``/{collection}/{id}/data/docs``: only
+    its data paths; ``data_ids`` (the entity's topics) become examples of
+    ``{data_id}``.  The caller checks that the entity exists.
+    """
+    full = _document()
+    root = f"/{collection}"
+    template = f"{root}/{{{PARAM_NAMES[collection]}}}"
+    prefix = template + "/data" if data else (template if entity_id is not None else root)
+    paths: dict[str, Any] = {}
+    for path, ops in full["paths"].items():
+        if path != prefix and not path.startswith(prefix + "/"):
+            continue
+        if entity_id is None:
+            paths[path] = ops
+            continue
+        paths[f"{root}/{entity_id}" + path[len(template):]] = {
+            method: _bind(op, PARAM_NAMES[collection], data_ids) for method, op in ops.items()}
+    scope = prefix if entity_id is None else prefix.replace(template, f"{root}/{entity_id}")
+    return {**full, "info": {**full["info"], "title": f"sovd-gateway - {scope.lstrip('/')}"},
+            "paths": paths}
+
+
+def _bind(op: dict[str, Any], id_name: str, data_ids: list[str] | tuple[str, ...]) -> dict[str, Any]:
+    """``op`` without its entity-id path parameter; topics as examples of ``data_id``."""
+    params = []
+    for param in op.get("parameters", []):
+        if param["name"] == id_name and param["in"] == "path":
+            continue
+        if param["name"] == "data_id" and data_ids:
+            param = {**param, "examples": {t: {"summary": f"topic {t}", "value": t.lstrip("/")}
+                                           for t in data_ids}}
+        params.append(param)
+    out = {k: v for k, v in op.items() if k != "parameters"}
+    if params:
+        out["parameters"] = params
+    return out
 
 
 def endpoint_list() -> list[str]:

@@ -66,29 +66,122 @@ def test_app_detail(client):
     assert d["id"] == "temp_sensor" and d["type"] == "app"
     assert d["data"] == "/api/v1/apps/temp_sensor/data"
     assert d["is-located-on"] == "/api/v1/components/test-robot"
-    assert {"name": "data", "href": "/api/v1/apps/temp_sensor/data"} in d["capabilities"]
+    assert d["belongs-to"] == "/api/v1/apps/temp_sensor/belongs-to"
+    assert [c["name"] for c in d["capabilities"]] == ["data", "is-located-on", "belongs-to"]
+    assert {"name": "is-located-on", "href": "/api/v1/apps/temp_sensor/is-located-on"} in d["capabilities"]
     assert d["_links"] == {"self": "/api/v1/apps/temp_sensor", "collection": "/api/v1/apps",
-                           "is-located-on": "/api/v1/components/test-robot"}
+                           "is-located-on": "/api/v1/components/test-robot",
+                           "belongs-to": "/api/v1/apps/temp_sensor/belongs-to"}
     assert d["x-medkit"]["ros2"] == {"node": "/powertrain/engine/temp_sensor"}
 
 
 def test_component_and_function_details(client):
     c = client.get("/api/v1/components/test-robot").get_json()
     assert c["id"] == "test-robot" and c["type"] == "component" and c["data"].endswith("/data")
-    assert c["_links"]["self"] == "/api/v1/components/test-robot"
+    assert c["_links"] == {"self": "/api/v1/components/test-robot", "collection": "/api/v1/components"}
+    assert c["hosts"] == "/api/v1/components/test-robot/hosts"
+    assert c["subcomponents"] == "/api/v1/components/test-robot/subcomponents"
+    assert [cap["name"] for cap in c["capabilities"]] == ["data", "subcomponents", "hosts"]
+    assert c["x-medkit"]["capabilities"] == c["capabilities"]
     f = client.get("/api/v1/functions/powertrain").get_json()
-    assert f["hosts"] == ["temp_sensor"] and f["type"] == "function"
+    assert f["type"] == "function" and f["hosts"] == "/api/v1/functions/powertrain/hosts"
+    assert f["x-medkit"]["hosts"] == ["temp_sensor"]
+    assert f["_links"] == {"self": "/api/v1/functions/powertrain", "collection": "/api/v1/functions"}
 
 
 def test_is_located_on(client):
     r = client.get("/api/v1/apps/temp_sensor/is-located-on")
     assert r.status_code == 200
-    (host,) = r.get_json()["items"]
+    body = r.get_json()
+    (host,) = body["items"]
     assert host["id"] == "test-robot" and host["type"] == "component"
+    assert host["name"] == "test-robot" and host["href"] == "/api/v1/components/test-robot"
+    assert body["x-medkit"] == {"total_count": 1}
+    assert body["_links"] == {"self": "/api/v1/apps/temp_sensor/is-located-on",
+                              "app": "/api/v1/apps/temp_sensor"}
+
+
+@pytest.mark.parametrize("path, ids, owner", [
+    ("/api/v1/components/test-robot/hosts", ["controller", "pressure_sensor", "temp_sensor"],
+     ("component", "/api/v1/components/test-robot")),
+    ("/api/v1/components/test-robot/subcomponents", [], ("parent", "/api/v1/components/test-robot")),
+    ("/api/v1/components/test-robot/depends-on", [], ("component", "/api/v1/components/test-robot")),
+    ("/api/v1/apps/temp_sensor/is-located-on", ["test-robot"], ("app", "/api/v1/apps/temp_sensor")),
+    ("/api/v1/apps/temp_sensor/belongs-to", [], ("app", "/api/v1/apps/temp_sensor")),
+    ("/api/v1/apps/controller/depends-on", [], ("app", "/api/v1/apps/controller")),
+    ("/api/v1/functions/powertrain/hosts", ["temp_sensor"], ("function", "/api/v1/functions/powertrain")),
+    ("/api/v1/functions/body/hosts", ["controller"], ("function", "/api/v1/functions/body")),
+])
+def test_relation_collections(client, path, ids, owner):
+    r = client.get(path)
+    assert r.status_code == 200 and r.headers["Content-Type"] == "application/json"
+    body = r.get_json()
+    assert [i["id"] for i in body["items"]] == ids
+    assert body["x-medkit"] == {"total_count": len(ids)}
+    assert body["_links"] == {"self": path, owner[0]: owner[1]}
+    for item in body["items"]:
+        assert {"id", "name", "href", "type"} <= set(item)
+        assert item["href"] == f"/api/v1/{item['type']}s/{item['id']}"
+
+
+def test_every_detail_link_answers(client):
+    """HATEOAS: every URI an entity detail advertises answers 200 (nothing a client follows is a 404)."""
+    for path in ("/api/v1/components/test-robot", "/api/v1/apps/temp_sensor", "/api/v1/functions/powertrain"):
+        d = client.get(path).get_json()
+        uris = {v for k, v in d.items() if isinstance(v, str) and v.startswith("/api/v1/")}
+        uris |= {c["href"] for c in d["capabilities"]} | set(d["_links"].values())
+        assert len(uris) >= 3
+        for uri in uris:
+            assert client.get(uri).status_code == 200, uri
+
+
+@pytest.mark.parametrize("path, message, param", [
+    ("/api/v1/components/nope/hosts", "Component not found", "component_id"),
+    ("/api/v1/components/nope/subcomponents", "Component not found", "component_id"),
+    ("/api/v1/components/nope/depends-on", "Component not found", "component_id"),
+    ("/api/v1/components/temp_sensor/hosts", "Component not found", "component_id"),  # an app's id
+    ("/api/v1/functions/nope/hosts", "Function not found", "function_id"),
+    ("/api/v1/functions/temp_sensor/hosts", "Function not found", "function_id"),
+    ("/api/v1/areas/nope/components", "Area not found", "area_id"),
+    ("/api/v1/areas/nope/contains", "Area not found", "area_id"),
+    ("/api/v1/areas/nope/subareas", "Area not found", "area_id"),
+    ("/api/v1/areas/powertrain/components", "Area not found", "area_id"),  # a function's id
+])
+def test_relation_of_unknown_owner_is_medkits_typed_404(client, path, message, param):
+    r = client.get(path)
+    assert r.status_code == 404
+    entity_id = path.split("/")[4]
+    assert r.get_json() == {"error_code": "entity-not-found", "message": message,
+                            "parameters": {param: entity_id}}
+
+
+@pytest.mark.parametrize("path, message, param", [
+    ("/api/v1/components/a.b/hosts", "Invalid component ID", "component_id"),
+    ("/api/v1/components/a.b/depends-on", "Invalid component ID", "component_id"),
+    ("/api/v1/functions/a.b/hosts", "Invalid function ID", "function_id"),
+    ("/api/v1/areas/a.b/components", "Invalid area ID", "area_id"),
+    ("/api/v1/areas/a.b/contains", "Invalid area ID", "area_id"),
+    ("/api/v1/areas/a.b/subareas", "Invalid area ID", "area_id"),
+])
+def test_relation_with_invalid_owner_id_is_medkits_typed_400(client, fw, path, message, param):
+    before = len(fw.requests)
+    r = client.get(path)
+    assert r.status_code == 400
+    assert r.get_json() == {"error_code": "invalid-parameter", "message": message, "parameters": {
+        "details": "Entity ID contains invalid character: '.'. Only alphanumeric, underscore and hyphen "
+                   "are allowed", param: "a.b"}}
+    assert len(fw.requests) == before  # nothing asked of the ROS worker
+
+
+ONLY = ". Only alphanumeric, underscore and hyphen are allowed"
 
 
 @pytest.mark.parametrize("bad, detail", [
-    ("a.b", "'.'"), ("a%20b", "' '"), ("x" * 257, "longer than 256"), ("%C3%A9t%C3%A9", "'é'"),
+    ("a.b", "Entity ID contains invalid character: '.'" + ONLY),
+    ("a%20b", "Entity ID contains invalid character: ' '" + ONLY),
+    ("a%7Fb", "Entity ID contains invalid character: '0x7f'" + ONLY),
+    ("x" * 257, "Entity ID too long (max 256 characters)"),
+    ("%C3%A9t%C3%A9", "Entity ID contains invalid character: '0xc3'" + ONLY),  # medkit names the byte
 ])
 @pytest.mark.parametrize("collection", ["areas", "components", "apps", "functions"])
 def test_invalid_entity_id(client, fw, collection, bad, detail):
@@ -97,8 +190,7 @@ def test_invalid_entity_id(client, fw, collection, bad, detail):
     assert r.status_code == 400
     body = r.get_json()
     assert body["error_code"] == "invalid-parameter" and body["message"] == "Invalid entity ID"
-    assert detail in body["parameters"]["details"]
-    assert body["parameters"]["entity_id"] == unquote(bad)
+    assert body["parameters"] == {"details": detail, "entity_id": unquote(bad)}
     assert len(fw.requests) == before  # nothing asked of the ROS worker
 
 
@@ -109,6 +201,7 @@ def test_longest_valid_id_is_a_404(client):
 
 @pytest.mark.parametrize("path", ["/api/v1/apps/nope", "/api/v1/components/nope", "/api/v1/functions/nope",
                                   "/api/v1/areas/nope", "/api/v1/apps/nope/is-located-on",
+                                  "/api/v1/apps/nope/belongs-to", "/api/v1/apps/nope/depends-on",
                                   "/api/v1/apps/nope/data", "/api/v1/components/nope/data/x/y"])
 def test_unknown_entity(client, path):
     r = client.get(path)
@@ -125,15 +218,17 @@ def test_unknown_entity(client, path):
     ("/api/v1/areas/powertrain", "Area", "Function"),
     ("/api/v1/components/temp_sensor/data", "Component", "App"),
     ("/api/v1/functions/temp_sensor/data/powertrain/engine/temperature", "Function", "App"),
+    ("/api/v1/apps/test-robot/is-located-on", "App", "Component"),
+    ("/api/v1/apps/powertrain/belongs-to", "App", "Function"),
+    ("/api/v1/apps/test-robot/depends-on", "App", "Component"),
 ])
 def test_id_of_another_type(client, path, expected, actual):
     r = client.get(path)
     assert r.status_code == 400
-    body = r.get_json()
-    assert body["error_code"] == "invalid-parameter"
-    assert body["parameters"]["entity_id"] == path.split("/")[4]
-    assert body["parameters"]["expected_type"] == expected
-    assert body["parameters"]["actual_type"] == actual
+    assert r.get_json() == {
+        "error_code": "invalid-parameter",
+        "message": f"Invalid entity type for route: expected {expected}, got {actual}",
+        "parameters": {"entity_id": path.split("/")[4], "expected_type": expected, "actual_type": actual}}
 
 
 def test_is_located_on_only_for_apps(client):

@@ -127,8 +127,116 @@ def test_id_rules(gw):
     assert r.status_code == 400
     assert r.json()["parameters"]["expected_type"] == "Component"
     assert r.json()["parameters"]["actual_type"] == "App"
+    assert r.json()["message"] == "Invalid entity type for route: expected Component, got App"
     assert gw.get("/apps/no_such_app").status_code == 404
     assert gw.get("/apps/bad.id").json()["message"] == "Invalid entity ID"
+
+
+# ------------------------------------------------------------------ relations (medkit's HATEOAS)
+APPS = {"temp_sensor", "pressure_sensor", "controller", "left_wheel_driver", "right_wheel_driver"}
+
+
+def relation(gw, path: str) -> dict:
+    r = gw.get(path)
+    assert r.status_code == 200, r.text
+    body = r.json()
+    assert body["x-medkit"]["total_count"] == len(body["items"])
+    assert body["_links"]["self"] == "/api/v1" + path
+    for item in body["items"]:
+        assert {"id", "name", "href"} <= set(item) and item["href"].endswith("/" + item["id"])
+    return body
+
+
+def test_relations_follow_the_ros_graph(gw):
+    wait_for_apps(gw, APPS)
+    hosts = relation(gw, f"/components/{HOST_ID}/hosts")
+    assert APPS <= {i["id"] for i in hosts["items"]}
+    assert all(i["href"].startswith("/api/v1/apps/") for i in hosts["items"])
+    assert hosts["_links"]["component"] == f"/api/v1/components/{HOST_ID}"
+    func = relation(gw, "/functions/powertrain/hosts")
+    assert [i["id"] for i in func["items"]] == ["temp_sensor"]
+    assert func["_links"]["function"] == "/api/v1/functions/powertrain"
+    assert [i["id"] for i in relation(gw, "/functions/left/hosts")["items"]] == ["left_wheel_driver"]
+    located = relation(gw, "/apps/temp_sensor/is-located-on")
+    assert [(i["id"], i["href"]) for i in located["items"]] == [(HOST_ID, f"/api/v1/components/{HOST_ID}")]
+    assert located["_links"]["app"] == "/api/v1/apps/temp_sensor"
+    for path, owner in ((f"/components/{HOST_ID}/subcomponents", "parent"),
+                        (f"/components/{HOST_ID}/depends-on", "component"),
+                        ("/apps/temp_sensor/belongs-to", "app"), ("/apps/controller/depends-on", "app")):
+        body = relation(gw, path)
+        assert body["items"] == [] and body["x-medkit"] == {"total_count": 0}, path
+        assert owner in body["_links"], path
+
+
+def test_every_link_of_every_entity_answers(gw):
+    """A client that follows every URI a detail advertises never meets a 404."""
+    wait_for_apps(gw, APPS)
+    followed = 0
+    for collection in ("components", "apps", "functions"):
+        for item in gw.get(f"/{collection}").json()["items"]:
+            detail = gw.get(f"/{collection}/{item['id']}").json()
+            uris = {v for v in detail.values() if isinstance(v, str) and v.startswith("/api/v1/")}
+            uris |= {c["href"] for c in detail["capabilities"]} | set(detail["_links"].values())
+            for uri in uris:
+                r = gw.get(uri[len("/api/v1"):])
+                assert r.status_code == 200, (uri, r.text)
+                followed += 1
+    assert followed > 30
+
+
+@pytest.mark.parametrize("path, status, body", [
+    ("/components/nope/hosts", 404,
+     {"error_code": "entity-not-found", "message": "Component not found", "parameters": {"component_id": "nope"}}),
+    ("/components/temp_sensor/subcomponents", 404,
+     {"error_code": "entity-not-found", "message": "Component not found",
+      "parameters": {"component_id": "temp_sensor"}}),
+    ("/functions/nope/hosts", 404,
+     {"error_code": "entity-not-found", "message": "Function not found", "parameters": {"function_id": "nope"}}),
+    ("/apps/nope/belongs-to", 404,
+     {"error_code": "entity-not-found", "message": "Entity not found", "parameters": {"entity_id": "nope"}}),
+    ("/apps/powertrain/depends-on", 400,
+     {"error_code": "invalid-parameter", "message": "Invalid entity type for route: expected App, got Function",
+      "parameters": {"entity_id": "powertrain", "expected_type": "App", "actual_type": "Function"}}),
+    ("/areas/nope", 404,
+     {"error_code": "entity-not-found", "message": "Entity not found", "parameters": {"entity_id": "nope"}}),
+    ("/areas/nope/components", 404,
+     {"error_code": "entity-not-found", "message": "Area not found", "parameters": {"area_id": "nope"}}),
+    ("/areas/nope/contains", 404,
+     {"error_code": "entity-not-found", "message": "Area not found", "parameters": {"area_id": "nope"}}),
+    ("/areas/nope/subareas", 404,
+     {"error_code": "entity-not-found", "message": "Area not found", "parameters": {"area_id": "nope"}}),
+    ("/areas/area;drop/components", 400,
+     {"error_code": "invalid-parameter", "message": "Invalid area ID",
+      "parameters": {"area_id": "area;drop", "details": "Entity ID contains invalid character: ';'. "
+                                                        "Only alphanumeric, underscore and hyphen are allowed"}}),
+    ("/components/a%20b/hosts", 400,
+     {"error_code": "invalid-parameter", "message": "Invalid component ID",
+      "parameters": {"component_id": "a b", "details": "Entity ID contains invalid character: ' '. "
+                                                       "Only alphanumeric, underscore and hyphen are allowed"}}),
+])
+def test_relation_errors_through_gunicorn(gw, path, status, body):
+    wait_for_apps(gw, {"temp_sensor"})
+    r = gw.get(path)
+    assert r.status_code == status and r.headers["Content-Type"] == "application/json"
+    assert r.json() == body
+
+
+def test_scoped_docs_through_gunicorn(gw):
+    wait_for_apps(gw, {"temp_sensor"})
+    whole = gw.get("/docs").json()
+    apps = gw.get("/apps/docs").json()
+    assert set(apps["paths"]) == {p for p in whole["paths"] if p == "/apps" or p.startswith("/apps/")}
+    one = gw.get("/apps/temp_sensor/docs").json()
+    assert "/apps/temp_sensor/is-located-on" in one["paths"]
+    assert all(p.startswith("/apps/temp_sensor") for p in one["paths"])
+    data = gw.get("/apps/temp_sensor/data/docs").json()
+    (param,) = [p for p in data["paths"]["/apps/temp_sensor/data/{data_id}"]["get"]["parameters"]
+                if p["name"] == "data_id"]
+    assert TEMP in param["examples"]
+    r = gw.get("/apps/no_such_app/docs")
+    assert r.status_code == 404
+    assert r.json()["message"] == "No capability description available for the requested path"
+    assert "GET /api/v1/components/{component_id}/hosts" in gw.get("/").json()["endpoints"]
 
 
 def test_data_items_of_an_app(gw):

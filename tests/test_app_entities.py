@@ -68,10 +68,57 @@ def test_app_detail():
     assert d["id"] == "temp_sensor" and d["type"] == "app" and d["name"] == "temp_sensor"
     assert d["data"] == "/api/v1/apps/temp_sensor/data"
     assert d["is-located-on"] == "/api/v1/components/my-robot_local"
-    assert d["capabilities"] == [{"name": "data", "href": "/api/v1/apps/temp_sensor/data"}]
+    assert d["belongs-to"] == "/api/v1/apps/temp_sensor/belongs-to"
+    assert "depends-on" not in d  # medkit links it only when there are dependencies
+    assert d["capabilities"] == [
+        {"name": "data", "href": "/api/v1/apps/temp_sensor/data"},
+        {"name": "is-located-on", "href": "/api/v1/apps/temp_sensor/is-located-on"},
+        {"name": "belongs-to", "href": "/api/v1/apps/temp_sensor/belongs-to"}]
     assert d["_links"] == {"self": "/api/v1/apps/temp_sensor", "collection": "/api/v1/apps",
-                           "is-located-on": "/api/v1/components/my-robot_local"}
+                           "is-located-on": "/api/v1/components/my-robot_local",
+                           "belongs-to": "/api/v1/apps/temp_sensor/belongs-to"}
     assert d["x-medkit"] == app.listing_item()["x-medkit"]
+
+
+def test_component_function_and_area_details():
+    idx = build(graph(node("/powertrain/engine/temp_sensor", [TEMP]), node("/powertrain/gearbox")), HOST)
+    c = idx.get("components", "my-robot_local").detail()
+    base = "/api/v1/components/my-robot_local"
+    assert (c["data"], c["subcomponents"], c["hosts"]) == (base + "/data", base + "/subcomponents",
+                                                           base + "/hosts")
+    assert "depends-on" not in c and "belongs-to" not in c
+    caps = [{"name": n, "href": f"{base}/{n}"} for n in ("data", "subcomponents", "hosts")]
+    assert c["capabilities"] == caps and c["x-medkit"] == {"source": "runtime", "capabilities": caps}
+    assert c["_links"] == {"self": base, "collection": "/api/v1/components"}
+    f = idx.get("functions", "powertrain").detail()
+    assert f["hosts"] == "/api/v1/functions/powertrain/hosts"
+    assert f["x-medkit"] == {"source": "runtime", "hosts": ["gearbox", "temp_sensor"]}
+    assert [cap["name"] for cap in f["capabilities"]] == ["hosts", "data"]
+    # No areas exist in runtime discovery; one built by hand gets medkit's area URIs.
+    a = entities.Entity("areas", "engine", "Engine", {}).detail()
+    assert (a["subareas"], a["components"], a["contains"]) == (
+        "/api/v1/areas/engine/subareas", "/api/v1/areas/engine/components", "/api/v1/areas/engine/contains")
+    assert [cap["name"] for cap in a["capabilities"]] == ["subareas", "contains", "data"]
+
+
+def test_relations():
+    idx = build(graph(node("/powertrain/engine/temp_sensor", [TEMP]), node("/chassis/brakes/p", [PRESSURE])),
+                HOST)
+    comp, app = idx.get("components", "my-robot_local"), idx.get("apps", "temp_sensor")
+    func = idx.get("functions", "chassis")
+    assert [e.id for e in idx.related(comp, "hosts")] == ["p", "temp_sensor"]
+    assert [e.id for e in idx.related(func, "hosts")] == ["p"]
+    assert [e.id for e in idx.related(app, "is-located-on")] == ["my-robot_local"]
+    for owner, relation in ((comp, "subcomponents"), (comp, "depends-on"), (app, "belongs-to"),
+                            (app, "depends-on")):
+        assert idx.related(owner, relation) == []
+    body = idx.relation_body(app, "is-located-on")
+    assert body == {"items": [comp.listing_item()], "x-medkit": {"total_count": 1},
+                    "_links": {"self": "/api/v1/apps/temp_sensor/is-located-on",
+                               "app": "/api/v1/apps/temp_sensor"}}
+    assert idx.relation_body(comp, "subcomponents")["_links"] == {
+        "self": "/api/v1/components/my-robot_local/subcomponents",
+        "parent": "/api/v1/components/my-robot_local"}
 
 
 def test_same_node_name_in_several_namespaces_gets_namespace_ids():

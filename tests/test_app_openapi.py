@@ -12,6 +12,7 @@ import jsonschema
 import pytest
 
 from app import openapi
+from app.entities import RELATIONS
 from ipc.errors import IpcError
 from tests.support.fakeworker import ROBOT, FakeWorker, data_sample, make_app
 
@@ -41,6 +42,9 @@ def _template_regex(template: str) -> re.Pattern:
 def operation(doc, method: str, path: str) -> tuple[str, dict]:
     rel = path.split("?", 1)[0][len("/api/v1"):]
     matches = [t for t in doc["paths"] if _template_regex(t).fullmatch(rel)]
+    # OpenAPI: concrete paths match before templated ones (`/apps/docs` before `/apps/{app_id}`).
+    fewest = min((t.count("{") for t in matches), default=0)
+    matches = [t for t in matches if t.count("{") == fewest]
     assert len(matches) == 1, f"{path} matches {matches}"
     ops = doc["paths"][matches[0]]
     assert method.lower() in ops, f"{method} {matches[0]} is not documented"
@@ -75,6 +79,41 @@ def test_schemas_are_valid_json_schema(doc):
     assert doc["openapi"] == "3.1.0"
 
 
+def test_names_generated_clients_see_are_medkits(doc):
+    """The names medkit's published spec gives, which generated clients import."""
+    assert doc["info"]["x-sovd-version"] == "1.0.0"
+    assert doc["components"]["responses"]["GenericError"]["content"]["application/json"]["schema"] == {
+        "$ref": "#/components/schemas/GenericError"}
+    assert {"GenericError", "ComponentList", "ComponentListItem", "ComponentDetail", "AppList", "AppListItem",
+            "AppDetail", "AreaList", "AreaDetail", "FunctionList", "FunctionDetail", "XMedkitApp",
+            "XMedkitCollection", "DataItem", "DataList", "DataValue", "DataWriteRequest", "HealthStatus",
+            "RootOverview", "VersionInfo"} <= set(doc["components"]["schemas"])
+    ops = {f"{m.upper()} {p}": (op["operationId"], op["tags"]) for p, path in doc["paths"].items()
+           for m, op in path.items()}
+    assert ops["GET /components"] == ("listComponents", ["Discovery"])
+    assert ops["GET /apps/{app_id}"] == ("getApp", ["Discovery"])
+    assert ops["GET /apps/{app_id}/is-located-on"] == ("getAppHost", ["Discovery"])
+    assert ops["GET /apps/{app_id}/belongs-to"] == ("getAppArea", ["Discovery"])
+    assert ops["GET /apps/{app_id}/depends-on"] == ("listAppDependencies", ["Discovery"])
+    assert ops["GET /components/{component_id}/hosts"] == ("listComponentHosts", ["Discovery"])
+    assert ops["GET /components/{component_id}/subcomponents"] == ("listSubcomponents", ["Discovery"])
+    assert ops["GET /components/{component_id}/depends-on"] == ("listComponentDependencies", ["Discovery"])
+    assert ops["GET /functions/{function_id}/hosts"] == ("listFunctionHosts", ["Discovery"])
+    assert ops["GET /areas/{area_id}/contains"] == ("listAreaContains", ["Discovery"])
+    assert ops["GET /apps/{app_id}/data"] == ("listAppData", ["Data"])
+    assert ops["GET /apps/{app_id}/data/{data_id}"] == ("getAppDataItem", ["Data"])
+    assert ops["PUT /components/{component_id}/data/{data_id}"] == ("putComponentDataItem", ["Data"])
+    assert ops["GET /health"] == ("getHealth", ["Server"])
+    assert len({op_id for op_id, _ in ops.values()}) == len(ops)  # operationIds are unique
+    # Every error response is the one GenericError response.
+    for path in doc["paths"].values():
+        for op in path.values():
+            for status, response in op["responses"].items():
+                if status == "default" or int(status) >= 400:
+                    assert response["$ref"] == "#/components/responses/GenericError", (op["operationId"], status)
+                    assert response["description"]
+
+
 def test_every_route_answers_per_the_document(doc):
     with FakeWorker() as fw:
         fw.set_graph(list(ROBOT))
@@ -87,14 +126,18 @@ def test_every_route_answers_per_the_document(doc):
         requests: list[tuple[str, str, dict]] = [
             ("GET", "/api/v1/", {}), ("GET", "/api/v1/version-info", {}), ("GET", "/api/v1/health", {}),
             ("GET", "/api/v1/docs", {}),
-            ("GET", "/api/v1/apps/temp_sensor/is-located-on", {}),
-            ("GET", "/api/v1/apps/nope/is-located-on", {}),
-            ("GET", "/api/v1/apps/b.d/is-located-on", {}),
         ]
+        for collection, relation in RELATIONS:
+            base = f"/api/v1/{collection}"
+            requests += [("GET", f"{base}/{ENTITY[collection] or 'nope'}/{relation}", {}),
+                         ("GET", f"{base}/nope/{relation}", {}), ("GET", f"{base}/b.d/{relation}", {})]
         for collection, eid in ENTITY.items():
             base = f"/api/v1/{collection}"
             target = eid or "nope"
             requests += [
+                ("GET", f"{base}/docs", {}),
+                ("GET", f"{base}/{target}/docs", {}),
+                ("GET", f"{base}/{target}/data/docs", {}),
                 ("GET", base, {}),
                 ("GET", f"{base}/{target}", {}),
                 ("GET", f"{base}/bad.id", {}),
@@ -137,7 +180,8 @@ def test_every_route_answers_per_the_document(doc):
         assert r.status_code == 504
         check(doc, "GET", "/api/v1/apps/temp_sensor/data/x", r)
         fw.stop()
-        for path in ("/api/v1/health", "/api/v1/apps", "/api/v1/apps/temp_sensor"):
+        for path in ("/api/v1/health", "/api/v1/apps", "/api/v1/apps/temp_sensor",
+                     "/api/v1/components/test-robot/hosts", "/api/v1/apps/temp_sensor/docs"):
             check(doc, "GET", path, client.get(path))
 
     documented = {f"{m.upper()} {p}" for p, ops in doc["paths"].items() for m in ops}
@@ -146,3 +190,9 @@ def test_every_route_answers_per_the_document(doc):
     assert 200 in seen["GET /apps/{app_id}/data/{data_id}"]
     assert 200 in seen["PUT /functions/{function_id}/data/{data_id}"]
     assert {400, 401, 403, 413} <= seen["PUT /components/{component_id}/data/{data_id}"]
+    for collection, relation in RELATIONS:  # each relation answered, and refused both ways
+        param = "{" + collection[:-1] + "_id}"
+        expected = {400, 404} if collection == "areas" else {200, 400, 404}
+        assert seen[f"GET /{collection}/{param}/{relation}"] == expected
+    assert seen["GET /apps/{app_id}/data/docs"] == {200}
+    assert seen["GET /areas/{area_id}/docs"] == {404}

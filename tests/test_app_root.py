@@ -9,7 +9,7 @@ import time
 import pytest
 
 from app import openapi
-from tests.support.fakeworker import ROBOT, STATS, FakeWorker, make_app
+from tests.support.fakeworker import ROBOT, STATS, FakeWorker, data_sample, make_app
 
 
 @pytest.fixture
@@ -34,6 +34,12 @@ def test_root(client):
     assert "GET /api/v1/health" in body["endpoints"]
     assert "PUT /api/v1/components/{component_id}/data/{data_id}" in body["endpoints"]
     assert "GET /api/v1/apps/{app_id}/is-located-on" in body["endpoints"]
+    for route in ("/components/{component_id}/hosts", "/components/{component_id}/subcomponents",
+                  "/components/{component_id}/depends-on", "/apps/{app_id}/belongs-to",
+                  "/apps/{app_id}/depends-on", "/functions/{function_id}/hosts", "/areas/{area_id}",
+                  "/areas/{area_id}/components", "/areas/{area_id}/contains", "/areas/{area_id}/subareas",
+                  "/docs", "/apps/docs", "/apps/{app_id}/docs", "/apps/{app_id}/data/docs"):
+        assert f"GET /api/v1{route}" in body["endpoints"], route
     assert body["endpoints"] == openapi.endpoint_list()
     caps = body["capabilities"]
     assert caps["discovery"] is True and caps["data_access"] is True and caps["publishing"] is False
@@ -117,6 +123,63 @@ def test_docs_is_openapi_31(client):
     assert any(p["name"] == "bytes" and p["in"] == "query" for p in params)
     put = doc["paths"]["/components/{component_id}/data/{data_id}"]["put"]
     assert {"401", "403", "413"} <= set(put["responses"])
+    assert doc["info"]["x-sovd-version"] == "1.0.0"
+    assert doc == openapi.document()
+
+
+def test_collection_docs_is_the_subtree(client):
+    r = client.get("/api/v1/apps/docs")
+    assert r.status_code == 200 and r.headers["Content-Type"] == "application/json"
+    doc = r.get_json()
+    whole = openapi.document()
+    expected = [p for p in whole["paths"] if p == "/apps" or p.startswith("/apps/")]
+    assert list(doc["paths"]) == expected and "/apps/{app_id}/is-located-on" in expected
+    assert doc["paths"]["/apps"] == whole["paths"]["/apps"]
+    assert doc["components"] == whole["components"] and doc["openapi"] == "3.1.0"
+    assert doc["info"]["title"] == "sovd-gateway - apps" and doc["info"]["x-sovd-version"] == "1.0.0"
+
+
+def test_entity_docs_fill_in_the_entity(client):
+    doc = client.get("/api/v1/components/test-robot/docs").get_json()
+    assert list(doc["paths"]) == [
+        "/components/test-robot", "/components/test-robot/data", "/components/test-robot/data/{data_id}",
+        "/components/test-robot/data-categories", "/components/test-robot/data-groups",
+        "/components/test-robot/subcomponents", "/components/test-robot/hosts",
+        "/components/test-robot/depends-on", "/components/test-robot/docs",
+        "/components/test-robot/data/docs"]
+    get = doc["paths"]["/components/test-robot/hosts"]["get"]
+    assert get["operationId"] == "listComponentHosts" and "parameters" not in get
+    read = doc["paths"]["/components/test-robot/data/{data_id}"]["get"]
+    assert [p["name"] for p in read["parameters"]] == ["data_id", "bytes"]
+    assert doc["info"]["title"] == "sovd-gateway - components/test-robot"
+
+
+def test_data_docs_list_the_entitys_topics(client):
+    doc = client.get("/api/v1/apps/temp_sensor/data/docs").get_json()
+    assert list(doc["paths"]) == ["/apps/temp_sensor/data", "/apps/temp_sensor/data/{data_id}",
+                                  "/apps/temp_sensor/data/docs"]
+    (data_id,) = [p for p in doc["paths"]["/apps/temp_sensor/data/{data_id}"]["get"]["parameters"]
+                  if p["name"] == "data_id"]
+    assert data_id["examples"]["/powertrain/engine/temperature"]["value"] == "powertrain/engine/temperature"
+    assert set(data_id["examples"]) == {"/powertrain/engine/temperature", "/rosout", "/parameter_events"}
+
+
+@pytest.mark.parametrize("path", ["/api/v1/apps/nope/docs", "/api/v1/apps/nope/data/docs",
+                                  "/api/v1/apps/bad.id/docs", "/api/v1/components/temp_sensor/docs",
+                                  "/api/v1/areas/root/data/docs"])
+def test_docs_of_no_entity_is_medkits_404(client, path):
+    r = client.get(path)
+    assert r.status_code == 404
+    assert r.get_json() == {"error_code": "resource-not-found",
+                            "message": "No capability description available for the requested path"}
+
+
+def test_topic_named_docs_is_still_readable(client, fw):
+    fw.samples["/docs"] = data_sample("/docs", "std_msgs/msg/String", {"data": "not the OpenAPI"})
+    for path in ("/api/v1/apps/temp_sensor/data//docs", "/api/v1/apps/temp_sensor/data/%2Fdocs"):
+        body = client.get(path).get_json()
+        assert body["id"] == "/docs" and body["data"] == {"data": "not the OpenAPI"}, path
+    assert "paths" in client.get("/api/v1/apps/temp_sensor/data/docs").get_json()
 
 
 @pytest.mark.parametrize("path", ["/api/v1/nope", "/api/v2/", "/", "/api/v1/apps/x/y/z",
@@ -128,6 +191,7 @@ def test_unmatched_route_is_json_404(client, path):
     body = r.get_json()
     assert body["error_code"] == "resource-not-found"
     assert body["message"] == "Resource not found"
+    assert body["parameters"]["status"] == 404  # medkit's parameter
 
 
 def test_405_is_json_with_allow(client):

@@ -10,7 +10,7 @@ from flask import Response, current_app
 from werkzeug.routing import BaseConverter
 
 from .. import rosclient
-from ..entities import COLLECTIONS, ENTITY_ID_MAX, KINDS, Entity
+from ..entities import COLLECTIONS, ENTITY_ID_MAX, KINDS, PARAM_NAMES, Entity
 from ..errors import ApiError
 
 _ID_CHAR = re.compile(r"[^A-Za-z0-9_-]")
@@ -47,15 +47,22 @@ class DataIdConverter(BaseConverter):
 
 
 def entity_id_problem(entity_id: str) -> str | None:
-    """Why ``entity_id`` is not 1–256 characters of ``[A-Za-z0-9_-]``, or None."""
-    if not entity_id:
-        return "Entity ID must not be empty"
-    if len(entity_id) > ENTITY_ID_MAX:
-        return f"Entity ID is longer than {ENTITY_ID_MAX} characters"
+    """Why ``entity_id`` is not 1–256 bytes of ``[A-Za-z0-9_-]``, or None.
+
+    The texts are medkit's (``core/entity_validation.cpp``): it checks the
+    UTF-8 bytes of the id, so a non-ASCII character is named by its first byte.
+    """
+    raw = entity_id.encode("utf-8", "replace")
+    if not raw:
+        return "Entity ID cannot be empty"
+    if len(raw) > ENTITY_ID_MAX:
+        return f"Entity ID too long (max {ENTITY_ID_MAX} characters)"
     bad = _ID_CHAR.search(entity_id)
     if bad:
-        return (f"Entity ID contains the character {bad.group()!r}; only letters, digits, "
-                "'_' and '-' are allowed")
+        byte = bad.group().encode("utf-8", "replace")[0]
+        shown = chr(byte) if 32 <= byte <= 126 else f"0x{byte:02x}"
+        return (f"Entity ID contains invalid character: '{shown}'. "
+                "Only alphanumeric, underscore and hyphen are allowed")
     return None
 
 
@@ -67,7 +74,11 @@ def check_entity_id(entity_id: str) -> None:
 
 
 def lookup(collection: str, entity_id: str) -> Entity:
-    """The entity, or the contract's 400 (bad id / other type) or 404."""
+    """The entity, or the contract's 400 (bad id / other type) or 404.
+
+    medkit's ``validate_entity_for_route`` (``handler_context.cpp``): entity
+    details, data routes and the app relation routes answer this way.
+    """
     check_entity_id(entity_id)
     index = rosclient.get().entities()
     entity = index.get(collection, entity_id)
@@ -76,8 +87,28 @@ def lookup(collection: str, entity_id: str) -> Entity:
     other = index.elsewhere(collection, entity_id)
     expected = KINDS[collection][1]
     if other is not None:
-        raise ApiError(400, "invalid-parameter", f"Entity is not a {expected}",
-                       {"details": f"'{entity_id}' is a {other.type_name}, not a {expected}",
-                        "entity_id": entity_id, "expected_type": expected,
+        raise ApiError(400, "invalid-parameter",
+                       f"Invalid entity type for route: expected {expected}, got {other.type_name}",
+                       {"entity_id": entity_id, "expected_type": expected,
                         "actual_type": other.type_name})
     raise ApiError(404, "entity-not-found", "Entity not found", {"entity_id": entity_id})
+
+
+def lookup_owner(collection: str, entity_id: str) -> Entity:
+    """The entity whose relation collection is asked for, or medkit's typed 400/404.
+
+    medkit's relation handlers of areas, components and functions
+    (``discovery_handlers.cpp``) look only in their own collection and name the
+    type: ``400 "Invalid component ID"`` with ``component_id``, ``404
+    "Component not found"``; an id of another type is simply not found there.
+    """
+    type_name = KINDS[collection][1]
+    param = PARAM_NAMES[collection]
+    problem = entity_id_problem(entity_id)
+    if problem:
+        raise ApiError(400, "invalid-parameter", f"Invalid {type_name.lower()} ID",
+                       {"details": problem, param: entity_id[:300]})
+    entity = rosclient.get().entities().get(collection, entity_id)
+    if entity is None:
+        raise ApiError(404, "entity-not-found", f"{type_name} not found", {param: entity_id})
+    return entity

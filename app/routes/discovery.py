@@ -1,12 +1,21 @@
-"""Entity listings and details: areas, components, apps, functions (runtime-only discovery)."""
+"""Entity listings, details and relation collections (runtime-only discovery).
+
+Relation collections are medkit's HATEOAS links (``entities.RELATIONS``):
+``/components/{id}/hosts``, ``/apps/{id}/is-located-on`` ... each answered as
+``{"items", "x-medkit": {"total_count"}, "_links": {"self", <owner>}}``.  Their
+errors are medkit's, handler by handler: the app relations check the id like
+an entity detail does (:func:`~app.routes.common.lookup`), the others name
+their type (:func:`~app.routes.common.lookup_owner`: ``"Component not found"``
+with ``component_id``).
+"""
 
 from __future__ import annotations
 
 from flask import Blueprint
 
 from .. import rosclient
-from ..entities import API_BASE
-from .common import json_response, lookup
+from ..entities import API_BASE, RELATIONS
+from .common import json_response, lookup, lookup_owner
 
 bp = Blueprint("discovery", __name__, url_prefix=API_BASE)
 
@@ -22,8 +31,16 @@ def detail(collection: str, entity_id: str):
     return json_response(lookup(collection, entity_id).detail())
 
 
-@bp.get("/apps/<entity_id>/is-located-on")
-def is_located_on(entity_id: str):
-    app = lookup("apps", entity_id)
-    host = lookup("components", app.component_id)
-    return json_response({"items": [host.listing_item()]})
+def _relation_view(collection: str, relation: str):
+    def view(entity_id: str):
+        # medkit's app relation handlers use validate_entity_for_route; the rest name their type.
+        owner = lookup(collection, entity_id) if collection == "apps" else lookup_owner(collection, entity_id)
+        return json_response(rosclient.get().entities().relation_body(owner, relation))
+
+    view.__name__ = f"{collection}_{relation.replace('-', '_')}"
+    return view
+
+
+for _collection, _relation in RELATIONS:
+    bp.add_url_rule(f"/{_collection}/<entity_id>/{_relation}", view_func=_relation_view(_collection, _relation),
+                    methods=["GET"])

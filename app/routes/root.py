@@ -1,4 +1,4 @@
-"""``GET /api/v1/``, ``/version-info``, ``/health`` and ``/docs``."""
+"""``GET /api/v1/``, ``/version-info``, ``/health`` and ``/docs`` (whole, or scoped to a part of the tree)."""
 
 from __future__ import annotations
 
@@ -11,12 +11,13 @@ from flask import Blueprint
 
 from .. import openapi, rosclient
 from ..entities import API_BASE
-from .common import config, json_response
+from ..errors import ApiError
+from .common import config, entity_id_problem, json_response
 
 bp = Blueprint("root", __name__, url_prefix=API_BASE)
 
 NAME = "sovd-gateway"
-SOVD_VERSION = "1.0.0"
+SOVD_VERSION = openapi.SOVD_VERSION
 
 # The contract's counters, in its order: what /health shows while the ROS worker is down
 # and no answer was ever received.
@@ -74,6 +75,33 @@ def version_info():
 @bp.get("/docs")
 def docs():
     return json_response(openapi.document())
+
+
+@bp.get("/<collection:collection>/docs")
+def collection_docs(collection: str):
+    return json_response(openapi.scoped_document(collection))
+
+
+@bp.get("/<collection:collection>/<entity_id>/docs")
+def entity_docs(collection: str, entity_id: str):
+    _documented_entity(collection, entity_id)
+    return json_response(openapi.scoped_document(collection, entity_id))
+
+
+@bp.get("/<collection:collection>/<entity_id>/data/docs")
+def entity_data_docs(collection: str, entity_id: str):
+    entity = _documented_entity(collection, entity_id)
+    return json_response(openapi.scoped_document(collection, entity_id, data=True,
+                                                 data_ids=sorted(entity.topics)))
+
+
+def _documented_entity(collection: str, entity_id: str):
+    """The entity, or medkit's 404 for a docs path that names none (any bad id included)."""
+    entity = None if entity_id_problem(entity_id) else rosclient.get().entities().get(collection, entity_id)
+    if entity is None:
+        raise ApiError(404, "resource-not-found",
+                       "No capability description available for the requested path")
+    return entity
 
 
 @bp.get("/health")
