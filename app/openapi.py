@@ -39,6 +39,11 @@ def _obj(required: list[str], **props: Any) -> dict[str, Any]:
             "properties": {k.replace("__", "-").replace("X_", "x-"): v for k, v in props.items()}}
 
 
+INTERVAL = {"enum": ["fast", "normal", "slow"], "description": "fast 50 ms, normal 200 ms, slow 500 ms"}
+STREAM_KEYS = ("active_subscriptions", "max_subscriptions", "open_streams", "frames_sent", "frames_dropped",
+               "frames_published", "subscriptions_created", "subscriptions_expired")
+
+
 def _title(collection: str) -> str:
     """``Component`` for ``components``: medkit's schema-name stem."""
     return KINDS[collection][1]
@@ -148,8 +153,29 @@ SCHEMAS: dict[str, Any] = {
                                                   "reach (another QoS or message-type version)"},
                       warning={**STR, "description": "only when unmatched_subscriber_count > 0"}),
     ),
+    "CyclicSubscription": _obj(
+        ["id", "observed_resource", "event_source", "protocol", "interval", "duration", "expires_at"],
+        id={**STR, "pattern": "^sub_[0-9a-f]{16}$"},
+        observed_resource={**STR, "description": "the resource URI as the client gave it"},
+        event_source={**STR, "description": "URI of the text/event-stream of this subscription"},
+        protocol={"const": "sse"}, interval=INTERVAL,
+        duration={**INT, "minimum": 1, "description": "seconds, counted from creation or the last update"},
+        expires_at={**STR, "format": "date-time", "description": "RFC 3339 UTC"},
+    ),
+    "CyclicSubscriptionList": _obj(["items"], items={"type": "array", "items": ref("CyclicSubscription")}),
+    "CyclicSubscriptionCreateRequest": _obj(
+        ["resource", "interval", "duration"],
+        resource={**STR, "description": "/api/v1/{apps|components|functions}/{id}/data/{topic}, in any "
+                                        "spelling the data route accepts, with its query (?bytes=base64)",
+                  "examples": ["/api/v1/apps/temp_sensor/data/powertrain/engine/temperature"]},
+        protocol={**STR, "default": "sse", "description": "only sse"}, interval=INTERVAL,
+        duration={**INT, "minimum": 1, "description": "seconds, at most max_stream_duration (3600)"},
+    ),
+    "CyclicSubscriptionUpdateRequest": _obj([], interval=INTERVAL,
+                                            duration={**INT, "minimum": 1, "description": "seconds from now"}),
     "HealthStatus": _obj(
-        ["status", "timestamp", "discovery", "x-medkit-data-provider", "x-medkit-subscription-executor"],
+        ["status", "timestamp", "discovery", "x-medkit-data-provider", "x-medkit-subscription-executor",
+         "x-medkit-streams"],
         status={"enum": ["healthy", "degraded", "unhealthy"],
                 "description": "unhealthy: the ROS worker is down or not answering; degraded: one of "
                                "its tasks ran past the watchdog threshold"},
@@ -173,11 +199,15 @@ SCHEMAS: dict[str, Any] = {
                                        "graph_events_received", "loop_errors")}),
             "description": "While the ROS worker is down: worker_alive false, the last counters received "
                            "(or zeros)"},
+        X_medkit__streams={**_obj(list(STREAM_KEYS), **{k: INT for k in STREAM_KEYS}),
+                           "description": "cyclic subscriptions held, and the SSE streams of every HTTP worker "
+                                          "(reported every second)"},
     ),
     "RootOverview": _obj(
         ["name", "version", "api_base", "endpoints", "capabilities"], name=STR,
         version={"type": "string", "pattern": r"^\d+\.\d+\.\d+"}, api_base={"const": API_BASE},
-        endpoints={"type": "array", "items": {"type": "string", "pattern": f"^(GET|PUT) {API_BASE}/"}},
+        endpoints={"type": "array", "items": {"type": "string",
+                                              "pattern": f"^(GET|PUT|POST|DELETE) {API_BASE}/"}},
         capabilities={**_obj(["discovery", "data_access", "publishing"]),
                       "additionalProperties": {"type": "boolean"}},
     ),
@@ -344,6 +374,60 @@ def _docs_paths() -> dict[str, Any]:
     return paths
 
 
+def _subscription_paths(collection: str) -> dict[str, Any]:
+    """medkit's cyclic subscriptions, on apps, components and functions."""
+    title, param = _title(collection), PARAM_NAMES[collection]
+    base = f"/{collection}/{{{param}}}/cyclic-subscriptions"
+    sub_param = {"name": "subscription_id", "in": "path", "required": True, "schema": STR}
+    params = [_id_param(collection)]
+    not_found = ("404", "Unknown entity (`entity-not-found`) or subscription (`resource-not-found`, "
+                        "`Subscription not found`, parameters `subscription_id`)")
+    bad = ("400", "A missing or invalid field (`invalid-parameter`), or a resource that is malformed, "
+                  "traverses paths or is `data` without a topic (`x-medkit-invalid-resource-uri`), names "
+                  "another entity (`x-medkit-entity-mismatch`) or another collection than `data` "
+                  "(`x-medkit-collection-not-supported`), or a protocol other than sse "
+                  "(`x-medkit-unsupported-protocol`)")
+    full = ("503", "At the max_subscriptions cap (`service-unavailable`), or the ROS worker is away; "
+                   "retry after `Retry-After` seconds")
+    created = {"description": "Created", "headers": {"Location": {"schema": STR}},
+               "content": {"application/json": {"schema": ref("CyclicSubscription")}}}
+    create = _op(f"create{title}CyclicSubscription", "Subscriptions",
+                 f"Stream a data item of a {collection[:-1]} every interval (SSE)", None, bad, not_found, full,
+                 "504", parameters=params, requestBody={"required": True, "content": {"application/json": {
+                     "schema": ref("CyclicSubscriptionCreateRequest")}}})
+    create["responses"] = {"201": created, **create["responses"]}
+    delete = _op(f"delete{title}CyclicSubscription", "Subscriptions", "Cancel a subscription; an open "
+                 "stream of it ends at once", None, not_found, "503", "504", parameters=params + [sub_param])
+    delete["responses"] = {"204": {"description": "Deleted"}, **delete["responses"]}
+    events = {"description": "text/event-stream: `data: {\"timestamp\", \"payload\"}` every interval, "
+                             "payload being exactly what a GET of the resource answers; `{\"timestamp\", "
+                             "\"error\"}` while that GET would answer an error; `:` keep-alives",
+              "content": {"text/event-stream": {"schema": STR}}}
+    return {
+        base: {
+            "get": _op(f"list{title}CyclicSubscriptions", "Subscriptions", f"A {collection[:-1]}'s active "
+                       "subscriptions", _ok("CyclicSubscriptionList"), "400", "404", "503", "504",
+                       parameters=params),
+            "post": create,
+        },
+        base + "/{subscription_id}": {
+            "get": _op(f"get{title}CyclicSubscription", "Subscriptions", "One subscription",
+                       _ok("CyclicSubscription"), not_found, "503", "504", parameters=params + [sub_param]),
+            "put": _op(f"update{title}CyclicSubscription", "Subscriptions", "Change interval and/or duration "
+                       "(a new duration counts from now); applies to open streams",
+                       _ok("CyclicSubscription"), bad, not_found, "503", "504",
+                       parameters=params + [sub_param], requestBody={"required": True, "content": {
+                           "application/json": {"schema": ref("CyclicSubscriptionUpdateRequest")}}}),
+            "delete": delete,
+        },
+        base + "/{subscription_id}/events": {
+            "get": _op(f"stream{title}CyclicSubscriptionEvents", "Subscriptions", "The subscription's "
+                       "Server-Sent Events stream", events, not_found, "503", "504",
+                       parameters=params + [sub_param]),
+        },
+    }
+
+
 @lru_cache(maxsize=1)
 def _document() -> dict[str, Any]:
     paths: dict[str, Any] = {
@@ -357,6 +441,8 @@ def _document() -> dict[str, Any]:
     for collection in COLLECTIONS:
         paths.update(_entity_paths(collection))
     paths.update(_relation_paths())
+    for collection in ("apps", "components", "functions"):
+        paths.update(_subscription_paths(collection))
     paths.update(_docs_paths())
     return {
         "openapi": "3.1.0",
@@ -366,7 +452,8 @@ def _document() -> dict[str, Any]:
         "servers": [{"url": API_BASE}],
         "tags": [{"name": "Server", "description": "Gateway health, metadata, version info and docs"},
                  {"name": "Discovery", "description": "Entity discovery and hierarchy navigation"},
-                 {"name": "Data", "description": "Read and write ROS 2 topic data"}],
+                 {"name": "Data", "description": "Read and write ROS 2 topic data"},
+                 {"name": "Subscriptions", "description": "Cyclic subscriptions: live data over SSE"}],
         "paths": paths,
         "components": {
             "schemas": SCHEMAS, "responses": {"GenericError": GENERIC_ERROR},

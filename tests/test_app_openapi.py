@@ -65,6 +65,9 @@ def check(doc, method: str, path: str, response) -> str:
         # `default` only covers errors: a success code must be listed.
         assert response.status_code >= 400, f"{key} answered {status}, which is not documented"
     spec = resolve(doc, documented)
+    if "content" not in spec:  # 204: no body at all
+        assert response.data == b"", f"{key} {status} has a body"
+        return key
     schema = spec["content"]["application/json"]["schema"]
     assert response.headers["Content-Type"] == "application/json"
     validator = jsonschema.Draft202012Validator({**schema, "components": doc["components"]})
@@ -165,6 +168,33 @@ def test_every_route_answers_per_the_document(doc):
             r = client.open(path, method=method, **kw)
             key = check(doc, method, path, r)
             seen.setdefault(key, set()).add(r.status_code)
+
+        # Cyclic subscriptions (their event streams' 200 is text/event-stream: tests/test_app_streams.py).
+        for collection in ("apps", "components", "functions"):
+            base = f"/api/v1/{collection}/{ENTITY[collection]}/cyclic-subscriptions"
+            resource = f"/api/v1/{collection}/{ENTITY[collection]}/data/powertrain/engine/temperature"
+            good = {"resource": resource, "interval": "fast", "duration": 30}
+            made = client.post(base, json=good)
+            sub = f"{base}/{made.get_json()['id']}"
+            for method, path, kw in [
+                ("POST", base, {"json": good}), ("POST", base, {"json": {**good, "interval": "hourly"}}),
+                ("POST", base, {"json": {**good, "resource": "/api/v1/apps/x/faults"}}),
+                ("POST", f"/api/v1/{collection}/nope/cyclic-subscriptions", {"json": good}),
+                ("GET", base, {}), ("GET", f"/api/v1/{collection}/bad.id/cyclic-subscriptions", {}),
+                ("GET", sub, {}), ("GET", base + "/sub_0000000000000000", {}),
+                ("PUT", sub, {"json": {"interval": "slow"}}), ("PUT", sub, {"json": {"duration": -1}}),
+                ("PUT", base + "/sub_0000000000000000", {"json": {"interval": "slow"}}),
+                ("GET", base + "/sub_0000000000000000/events", {}),
+                ("DELETE", sub, {}), ("DELETE", sub, {}),
+            ]:
+                r = client.open(path, method=method, **kw)
+                check(doc, method, path, r)
+                seen.setdefault(operation(doc, method, path)[0], set()).add(r.status_code)
+        fw.errors["sub_create"] = IpcError("subscriptions-full", "full", {"max_subscriptions": 1000})
+        r = client.post("/api/v1/apps/temp_sensor/cyclic-subscriptions", json={
+            "resource": "/api/v1/apps/temp_sensor/data/x", "interval": "slow", "duration": 5})
+        assert r.status_code == 503
+        check(doc, "POST", "/api/v1/apps/temp_sensor/cyclic-subscriptions", r)
 
         # The ROS worker's troubles, as documented.
         fw.errors["sample"] = IpcError("cold-wait-cap-exceeded", "cap", {"topic": "/x", "cold_wait_cap": 4})

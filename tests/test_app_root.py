@@ -145,8 +145,10 @@ def test_entity_docs_fill_in_the_entity(client):
         "/components/test-robot", "/components/test-robot/data", "/components/test-robot/data/{data_id}",
         "/components/test-robot/data-categories", "/components/test-robot/data-groups",
         "/components/test-robot/subcomponents", "/components/test-robot/hosts",
-        "/components/test-robot/depends-on", "/components/test-robot/docs",
-        "/components/test-robot/data/docs"]
+        "/components/test-robot/depends-on", "/components/test-robot/cyclic-subscriptions",
+        "/components/test-robot/cyclic-subscriptions/{subscription_id}",
+        "/components/test-robot/cyclic-subscriptions/{subscription_id}/events",
+        "/components/test-robot/docs", "/components/test-robot/data/docs"]
     get = doc["paths"]["/components/test-robot/hosts"]["get"]
     assert get["operationId"] == "listComponentHosts" and "parameters" not in get
     read = doc["paths"]["/components/test-robot/data/{data_id}"]["get"]

@@ -59,6 +59,7 @@ def root():
             "publishing": bool(cfg.allow_publish),
             "authentication": bool(cfg.api_token),
             "docs": True,
+            "cyclic_subscriptions": True,
         },
     })
 
