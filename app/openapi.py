@@ -199,6 +199,8 @@ def _entity_paths(collection: str) -> dict[str, Any]:
                       {"WWW-Authenticate": {"schema": STR}}),
         "403": _error("Publishing is disabled (`--allow-publish` not given) or the token is wrong "
                       "(`forbidden`)"),
+        "408": _error("The request body did not arrive within `body_timeout` (`invalid-request`); "
+                      "the connection is closed"),
         "413": _error("Request body larger than `max_body_bytes` (`payload-too-large`)"),
     }
     put_op = _op(f"put_{kind}_data_item", f"Publish one message to a topic through a {kind}",
