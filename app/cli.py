@@ -58,6 +58,8 @@ def main(argv: list[str] | None = None) -> int:
         level=cfg.log_level.upper(), stream=sys.stderr,
         format="%(asctime)s sovd-gateway[%(process)d] %(levelname)s: %(message)s",
     )
+    for note in cfg.ignored:
+        logging.getLogger("sovd.config").warning("%s", note)
     from .supervisor import Supervisor  # imports zmq: only once the settings are good
 
     return Supervisor(cfg).run()

@@ -125,12 +125,15 @@ SETTINGS: tuple[Setting, ...] = (
     # --- HTTP side ---
     Setting("bind", str, "127.0.0.1:8080", "HOST:PORT the HTTP server listens on"),
     Setting("workers", int, 2, "gunicorn worker processes", 1, 64),
-    Setting("threads", int, 8, "threads per gunicorn worker", 1, 256),
+    Setting("worker_connections", int, 1000,
+            "connections one HTTP worker holds at once (idle, reading, in a request or streaming)", 1, 100000),
     Setting("allow_publish", bool, False, "allow PUT .../data/... to publish to ROS topics"),
     Setting("api_token", str, "", "bearer token required for PUT (empty: none)"),
     Setting("max_body_bytes", int, 1048576, "largest accepted request body in bytes", 1024, 67108864),
     Setting("ipc_timeout", float, 2.0, "seconds an HTTP worker waits for a non-sample ROS-worker reply", 0.1, 60),
     Setting("header_timeout", float, 15.0, "seconds a client may take to send a request's head", 1, 300),
+    Setting("body_timeout", float, 30.0, "seconds a client may take to send a request's body (408 past it)",
+            1, 600),
     Setting("forwarded_allow_ips", str, "127.0.0.1,::1", "proxies trusted for X-Forwarded-* headers"),
     # --- service ---
     Setting("runtime_dir", str, "", "directory for the IPC socket and lock (default: see README)"),
@@ -143,12 +146,23 @@ SETTINGS: tuple[Setting, ...] = (
 )
 
 BY_NAME = {s.name: s for s in SETTINGS}
+# Settings that no longer exist: still accepted from every source, and ignored with a note
+# (``Config.ignored``, logged by ``sovd-gateway`` at start-up), so an old config does not stop a robot.
+RETIRED = {
+    "threads": "the HTTP workers run an event loop, not threads; "
+               "worker_connections bounds what one worker holds",
+}
 _NODE_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]{0,200}$")
 _BIND = re.compile(r"^(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
 
 
 class Config(dict):
-    """Resolved settings; attribute access for convenience (``cfg.sample_timeout``)."""
+    """Resolved settings; attribute access for convenience (``cfg.sample_timeout``).
+
+    ``ignored`` lists what was given for a retired setting, one sentence each.
+    """
+
+    ignored: tuple[str, ...] = ()
 
     def __getattr__(self, name: str) -> Any:
         try:
@@ -179,6 +193,9 @@ def add_arguments(parser: argparse.ArgumentParser, names: tuple[str, ...] | None
                 s.flag, dest=s.name, default=None, metavar=s.kind.__name__.upper(),
                 help=f"{s.help} (default {s.default!r}{'; ' + rng if rng else ''})",
             )
+    if names is None:
+        for name in RETIRED:
+            parser.add_argument("--" + name.replace("_", "-"), dest=name, default=None, help=argparse.SUPPRESS)
 
 
 def load(args: argparse.Namespace | None = None, environ: dict[str, str] | None = None) -> Config:
@@ -186,6 +203,10 @@ def load(args: argparse.Namespace | None = None, environ: dict[str, str] | None 
     environ = os.environ if environ is None else environ
     flags = vars(args) if args is not None else {}
     values: dict[str, Any] = {s.name: s.default for s in SETTINGS}
+    ignored: list[str] = []
+
+    def retired(name: str, source: str) -> None:
+        ignored.append(f"{name} (from {source}) is no longer a setting and is ignored: {RETIRED[name]}")
 
     path = flags.get("config") or environ.get(ENV_PREFIX + "CONFIG")
     if path:
@@ -199,6 +220,9 @@ def load(args: argparse.Namespace | None = None, environ: dict[str, str] | None 
         data = data.get("sovd_gateway", data)
         for key, raw in data.items():
             setting = BY_NAME.get(key)
+            if key in RETIRED:
+                retired(key, f"config file {path}")
+                continue
             if setting is None:
                 raise ConfigError(f"config file {path}: unknown setting {key!r}")
             values[key] = setting.parse(raw, f"config file {path}")
@@ -208,6 +232,12 @@ def load(args: argparse.Namespace | None = None, environ: dict[str, str] | None 
             values[s.name] = s.parse(environ[s.env], f"environment {s.env}")
         if flags.get(s.name) is not None:
             values[s.name] = s.parse(flags[s.name], f"flag {s.flag}")
+    for name in RETIRED:
+        env = ENV_PREFIX + name.upper()
+        if env in environ:
+            retired(name, f"environment {env}")
+        if flags.get(name) is not None:
+            retired(name, "flag --" + name.replace("_", "-"))
 
     if not _NODE_NAME.match(values["gateway_name"]):
         raise ConfigError(
@@ -221,7 +251,9 @@ def load(args: argparse.Namespace | None = None, environ: dict[str, str] | None 
         values["runtime_dir"] = default_runtime_dir(environ)
     if values["api_token"] and len(values["api_token"]) < 16:
         raise ConfigError("api_token: use at least 16 characters")
-    return Config(values)
+    cfg = Config(values)
+    cfg.ignored = tuple(ignored)
+    return cfg
 
 
 def default_runtime_dir(environ: dict[str, str] | os._Environ) -> str:

@@ -28,6 +28,7 @@ HTTP_CODES = {
     403: "forbidden",
     404: "resource-not-found",
     405: "invalid-request",
+    408: "invalid-request",
     413: "payload-too-large",
     500: "internal-error",
     501: "not-implemented",
@@ -37,6 +38,7 @@ HTTP_CODES = {
 HTTP_MESSAGES = {
     404: "Resource not found",
     405: "Method not allowed",
+    408: "Request body not received in time",
     413: "Request body too large",
 }
 
@@ -115,7 +117,7 @@ def _handle_http(exc: HTTPException) -> Response | HTTPException:
         if limit:
             params["max_body_bytes"] = limit
             message = f"Request body too large (limit {limit} bytes)"
-    elif status == 400 and exc.description:
+    elif status in (400, 408) and exc.description:
         params["details"] = exc.description
     return error_response(ApiError(status, code, message, params, headers=headers))
 

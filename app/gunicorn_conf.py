@@ -7,10 +7,11 @@ The supervisor starts gunicorn as::
 with every setting in the environment (``Config.to_env()``), so this module
 holds no defaults of its own: it maps the gateway's settings onto gunicorn's.
 
-- ``gthread`` workers (``app/gunicorn_worker.py``: request heads are read on
-  the worker's event loop, so idle or stalled clients hold no thread): a
-  request that waits on a cold topic holds one thread, not a whole process;
-  ``workers`` × ``threads`` requests run at once.
+- gevent workers (``app/http_worker.py``): each worker serves up to
+  ``worker_connections`` connections on one event loop, a greenlet each, so
+  idle, slow or streaming clients and requests waiting on the ROS worker hold
+  no thread.  Every read from a client has a deadline there
+  (``header_timeout``, ``body_timeout``, ``keepalive``).
 - No ``preload_app``: the Flask app (and its ZeroMQ client) is made in each
   worker after the fork, never in the master.
 - ``graceful_timeout`` is ``shutdown_grace``: on SIGTERM in-flight requests
@@ -33,8 +34,8 @@ _cfg = _config.load(None)
 
 bind = [_cfg.bind]
 workers = _cfg.workers
-worker_class = "app.gunicorn_worker.HeadBufferingWorker"
-threads = _cfg.threads
+worker_class = "app.http_worker.HttpWorker"
+worker_connections = _cfg.worker_connections
 graceful_timeout = max(1, math.ceil(_cfg.shutdown_grace))  # gunicorn wants whole seconds
 timeout = int(max(30.0, 2 * _cfg.sample_timeout + 2 * _cfg.ipc_timeout + 10))
 keepalive = 75

@@ -293,7 +293,9 @@ def _entity_paths(collection: str) -> dict[str, Any]:
                  ("401", "An API token is configured and the request has none (`unauthorized`)"),
                  ("403", "Publishing is disabled (`--allow-publish` not given) or the token is wrong "
                          "(`forbidden`)"),
-                 "404", ("413", "Request body larger than `max_body_bytes` (`payload-too-large`)"),
+                 "404", ("408", "The request body did not arrive within `body_timeout` (`invalid-request`); "
+                                "the connection is closed"),
+                 ("413", "Request body larger than `max_body_bytes` (`payload-too-large`)"),
                  "500", "503", "504",
                  parameters=[id_param, data_param],
                  requestBody={"required": True,

@@ -47,4 +47,8 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
     app.register_blueprint(discovery.bp)
     app.register_blueprint(data.bp)
     app.register_blueprint(subscriptions.bp)
+    if cfg.debug_commands:  # test and bench routes; never in production
+        from .routes import debug
+
+        debug.init_app(app)
     return app

@@ -1,18 +1,39 @@
 """The fork-safe client of the ROS worker, used by HTTP workers, the supervisor and the probe.
 
 Before fork / after fork: constructing a :class:`RosWorkerClient` touches no
-ZeroMQ state.  The context is made lazily in the process that first calls
-:meth:`call`, and each thread gets its own DEALER socket.  A process that
-finds a context made by another pid (it was forked) makes a new one.
+ZeroMQ state.  The context and the channel pools are made lazily in the
+process that first calls :meth:`~RosWorkerClient.call`; a process that finds
+them made by another pid (it was forked) makes its own and never touches the
+parent's.
+
+Channels.  A channel is one DEALER socket connected to an endpoint, a monitor
+of that connection's disconnections, and a poller over both.  A call borrows
+a channel from its endpoint's pool for the duration of one request and its
+reply, then gives it back.  A pool holds at most ``pool_size`` channels, made
+on demand and reused most recently returned first, so a process with many
+concurrent callers (an HTTP worker holds up to ``worker_connections``
+greenlets) holds a bounded number of sockets, and a caller beyond them waits
+for a free channel within its own deadline.  Pools are kept per endpoint.
+
+Green or plain.  In a process that gevent has patched (an HTTP worker; see
+``app/http_worker.py``) the context and the sockets are ``zmq.green``'s, so a
+call suspends only its own greenlet; the pool's semaphore is then gevent's
+too (``threading`` is patched).  Everywhere else (the supervisor, the probe,
+the tests) they are plain pyzmq and threads.  This module never imports
+gevent: it only asks whether the process was patched.
 
 Every call has a deadline.  DEALER sockets do not get stuck after a timeout
-the way REQ sockets do; a late reply is recognised by its id and dropped.
+the way REQ sockets do; a late reply is recognised by its id and dropped by
+whichever call uses the channel next.  A connection that drops while a call
+waits (the ROS worker died with the request) ends the call at once with
+``unavailable``.
 """
 
 from __future__ import annotations
 
 import itertools
 import os
+import sys
 import threading
 import time
 from typing import Any
@@ -24,14 +45,28 @@ from .errors import IpcError
 
 # How long a send waits for the connection to the ROS worker's socket to exist.
 CONNECT_WAIT = 0.25
+# Channels (DEALER sockets) per endpoint and process.  Requests of one HTTP worker that are in
+# flight at the same moment are bounded by it; the ROS worker answers them one at a time anyway,
+# and a cold read that waits holds its channel (at most ``cold_wait_cap`` such reads).
+POOL_SIZE = 32
+
+
+class _MalformedReply(IpcError):
+    """``internal``: a reply that is not a msgpack map; its channel is closed, not reused."""
+
+
+def green() -> bool:
+    """True in a process whose sockets gevent has patched (an HTTP worker)."""
+    monkey = sys.modules.get("gevent.monkey")
+    return monkey is not None and monkey.is_module_patched("socket")
 
 
 class _Channel:
-    """One thread's DEALER socket, a monitor of its disconnections, and a poller over both."""
+    """One DEALER socket, a monitor of its disconnections, and a poller over both."""
 
     __slots__ = ("sock", "mon", "poller")
 
-    def __init__(self, ctx: zmq.Context, endpoint: str):
+    def __init__(self, zmq_mod, ctx: zmq.Context, endpoint: str):
         sock = ctx.socket(zmq.DEALER)
         sock.setsockopt(zmq.LINGER, 0)
         sock.setsockopt(zmq.IMMEDIATE, 1)       # no queueing while the worker is down
@@ -43,7 +78,7 @@ class _Channel:
         self.mon = sock.get_monitor_socket(zmq.EVENT_DISCONNECTED)
         sock.connect(endpoint)
         self.sock = sock
-        self.poller = zmq.Poller()
+        self.poller = zmq_mod.Poller()
         self.poller.register(sock, zmq.POLLIN)
         self.poller.register(self.mon, zmq.POLLIN)
 
@@ -57,48 +92,98 @@ class _Channel:
         self.sock.close(linger=0)
 
 
-class RosWorkerClient:
-    """``ping`` and ``stats`` go to the worker's control socket, every other command to its work socket."""
+class _ChannelPool:
+    """At most ``size`` channels to one endpoint; each is used by one caller at a time."""
 
-    def __init__(self, endpoint: str):
+    def __init__(self, zmq_mod, ctx: zmq.Context, endpoint: str, size: int):
+        self._zmq, self._ctx, self.endpoint = zmq_mod, ctx, endpoint
+        self._slots = threading.BoundedSemaphore(size)
+        self._lock = threading.Lock()
+        self._idle: list[_Channel] = []
+        self._open: list[_Channel] = []
+
+    def acquire(self, timeout: float) -> _Channel | None:
+        """A free channel, made if none is idle; None when all stay busy for ``timeout`` s."""
+        if not self._slots.acquire(timeout=max(0.0, timeout)):
+            return None
+        try:
+            with self._lock:
+                if self._idle:
+                    return self._idle.pop()
+            channel = _Channel(self._zmq, self._ctx, self.endpoint)
+            with self._lock:
+                self._open.append(channel)
+            return channel
+        except BaseException:
+            self._slots.release()
+            raise
+
+    def release(self, channel: _Channel, broken: bool = False) -> None:
+        with self._lock:
+            if broken:
+                self._open.remove(channel)
+            else:
+                self._idle.append(channel)
+        if broken:
+            channel.close()
+        self._slots.release()
+
+    @property
+    def open_count(self) -> int:
+        return len(self._open)
+
+    def close(self) -> None:
+        with self._lock:
+            channels, self._open, self._idle = self._open, [], []
+        for channel in channels:
+            channel.close()
+
+
+class RosWorkerClient:
+    def __init__(self, endpoint: str, pool_size: int = POOL_SIZE):
         self.endpoint = endpoint
         self.control_endpoint = protocol.control_endpoint(endpoint)
+        self.pool_size = pool_size
         self._pid: int | None = None
         self._ctx: zmq.Context | None = None
-        self._local = threading.local()
+        self._zmq = zmq
+        self._pools: dict[str, _ChannelPool] = {}
         self._lock = threading.Lock()
         self._ids = itertools.count(1)
-        self._sockets: list[zmq.Socket] = []  # every thread's socket, so close() can close them all
 
     @classmethod
     def for_runtime_dir(cls, runtime_dir: str) -> RosWorkerClient:
         return cls(protocol.endpoint(runtime_dir))
 
-    def _channel(self, control: bool = False) -> _Channel:
+    @property
+    def channel_count(self) -> int:
+        """Channels (DEALER sockets) this process holds open, over every endpoint."""
+        if self._pid != os.getpid():
+            return 0
+        return sum(pool.open_count for pool in list(self._pools.values()))
+
+    def _endpoint_for(self, cmd: str) -> str:
+        """``ping`` and ``stats`` go to the worker's control socket, every other command to its work socket."""
+        return self.control_endpoint if cmd in protocol.IMMEDIATE else self.endpoint
+
+    def _pool(self, endpoint: str) -> _ChannelPool:
         pid = os.getpid()
         if self._pid != pid:
             with self._lock:
                 if self._pid != pid:
-                    # Forked (or first use): never touch the parent's context.
-                    self._ctx = zmq.Context()
-                    self._local = threading.local()
-                    self._sockets = []
+                    # Forked (or first use): never touch the parent's context or sockets.
+                    self._zmq = _green_zmq() if green() else zmq
+                    self._ctx = self._zmq.Context()
+                    self._pools = {}
                     self._pid = pid
-        slot = "control" if control else "channel"
-        channel = getattr(self._local, slot, None)
-        if channel is None:
-            channel = _Channel(self._ctx, self.control_endpoint if control else self.endpoint)
-            setattr(self._local, slot, channel)
+        pool = self._pools.get(endpoint)
+        if pool is None:
             with self._lock:
-                self._sockets = [s for s in self._sockets if not s.closed] + [channel.sock, channel.mon]
-        return channel
-
-    def _reset_channel(self, control: bool = False) -> None:
-        slot = "control" if control else "channel"
-        channel = getattr(self._local, slot, None)
-        if channel is not None:
-            channel.close()
-            setattr(self._local, slot, None)
+                pool = self._pools.get(endpoint)
+                if pool is None:
+                    pool = self._pools[endpoint] = _ChannelPool(self._zmq, self._ctx, endpoint,
+                                                                self.pool_size)
+        return pool
 
     def call(self, cmd: str, args: dict[str, Any] | None = None, timeout: float = 2.0,
              connect_wait: float = CONNECT_WAIT) -> dict[str, Any]:
@@ -106,12 +191,32 @@ class RosWorkerClient:
 
         Returns the ``result`` map; raises :class:`IpcError` with code
         ``unavailable`` (no ROS worker connected, or it went away while we
-        waited), ``deadline-exceeded`` (no answer in time) or whatever the ROS
-        worker answered.
+        waited), ``deadline-exceeded`` (no answer in time, or no free channel
+        in time) or whatever the ROS worker answered.
         """
         deadline = time.monotonic() + timeout
-        control = cmd in protocol.IMMEDIATE
-        channel = self._channel(control)
+        pool = self._pool(self._endpoint_for(cmd))
+        channel = pool.acquire(timeout)
+        if channel is None:
+            raise IpcError("deadline-exceeded",
+                           f"No free channel to the ROS worker for {cmd!r} within {timeout:g} s "
+                           f"({self.pool_size} requests of this process are in flight)",
+                           {"command": cmd, "timeout_s": timeout})
+        broken = True  # unless the exchange ends as the protocol says: anything else closes the channel
+        try:
+            result = self._exchange(channel, cmd, args, timeout, deadline, connect_wait)
+            broken = False
+            return result
+        except _MalformedReply:
+            raise  # start again on a new socket
+        except IpcError:
+            broken = False
+            raise
+        finally:
+            pool.release(channel, broken)
+
+    def _exchange(self, channel: _Channel, cmd: str, args: dict[str, Any] | None, timeout: float,
+                  deadline: float, connect_wait: float) -> dict[str, Any]:
         sock = channel.sock
         channel.forget_disconnects()
         rid = next(self._ids)
@@ -148,8 +253,7 @@ class RosWorkerClient:
             except zmq.Again:
                 continue
             except ValueError:
-                self._reset_channel(control)
-                raise IpcError("internal", "Malformed reply from the ROS worker") from None
+                raise _MalformedReply("internal", "Malformed reply from the ROS worker") from None
             if reply.get("id") != rid:
                 continue  # a late reply to an earlier, timed-out call
             if reply.get("ok") is True:
@@ -158,18 +262,23 @@ class RosWorkerClient:
             raise IpcError.from_wire(reply.get("error"))
 
     def close(self) -> None:
-        """Close every thread's socket and the context (call when no thread uses the client).
+        """Close every channel and the context (call when no thread uses the client).
 
         A context whose sockets are all closed terminates at once; left to the
         garbage collector with a socket still open, ``term`` would block.
         """
         with self._lock:
-            sockets, self._sockets = self._sockets, []
+            pools, self._pools = self._pools, {}
             ctx, owner = self._ctx, self._pid
             self._ctx, self._pid = None, None
-            self._local = threading.local()
         if ctx is None or owner != os.getpid():
             return  # never touch a context inherited across fork()
-        for sock in sockets:
-            sock.close(linger=0)
+        for pool in pools.values():
+            pool.close()
         ctx.term()
+
+
+def _green_zmq():
+    import zmq.green
+
+    return zmq.green

@@ -88,9 +88,12 @@ def test_main_returns_2_in_process(capsys):
 
 
 def test_creates_the_runtime_dir_0700_and_honours_config_file_and_flags(tmp_path):
-    """Config file < flag; the runtime dir is created private; the worker gets the settings."""
+    """Config file < flag; the runtime dir is created private; the worker gets the settings.
+
+    The file also names the retired ``threads``: start-up goes on, with a warning that names it.
+    """
     conf = tmp_path / "gw.toml"
-    conf.write_text("sample_timeout = 3.0\nworkers = 1\nthreads = 3\n")
+    conf.write_text("sample_timeout = 3.0\nworkers = 1\nworker_connections = 300\nthreads = 3\n")
     runtime = tmp_path / "run" / "sovd"
     port = free_port()
     gw = Proc([str(BIN / "sovd-gateway"), "--bind", f"127.0.0.1:{port}", "--runtime-dir", str(runtime),
@@ -106,8 +109,11 @@ def test_creates_the_runtime_dir_0700_and_honours_config_file_and_flags(tmp_path
                       if "rosworker" in " ".join(c.cmdline()))
         env = worker.environ()
         assert env["SOVD_SAMPLE_TIMEOUT"] == "1.5"  # the flag beats the file
-        assert env["SOVD_THREADS"] == "3"           # from the file
+        assert env["SOVD_WORKER_CONNECTIONS"] == "300"  # from the file
         assert "SOVD_CONFIG" not in env             # children get resolved values only
+        assert "SOVD_THREADS" not in env            # retired: not handed on
+        assert any("threads (from config file" in line and "ignored" in line for line in gw.output), \
+            "\n".join(gw.output[:20])
     finally:
         assert gw.stop() == 0
 

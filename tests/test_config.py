@@ -79,3 +79,18 @@ def test_runtime_dir_is_created_private(tmp_path):
     path.chmod(0o755)
     config.ensure_runtime_dir(str(path))
     assert path.stat().st_mode & 0o777 == 0o700
+
+
+def test_worker_connections_replaces_threads_which_is_ignored_from_every_source(tmp_path):
+    assert load().worker_connections == 1000
+    assert load(["--worker-connections", "64"]).worker_connections == 64
+    with pytest.raises(config.ConfigError, match="worker_connections .*out of range"):
+        load(["--worker-connections", "0"])
+    cfg = load(["--threads", "4"], {"SOVD_THREADS": "8"}, "threads = 2\nworkers = 3\n", tmp_path)
+    assert cfg.workers == 3 and "threads" not in cfg
+    assert [note.split(" is no longer")[0] for note in cfg.ignored] == [
+        f"threads (from config file {tmp_path / 'gateway.toml'})", "threads (from environment SOVD_THREADS)",
+        "threads (from flag --threads)"]
+    assert all("worker_connections" in note for note in cfg.ignored)
+    assert "SOVD_THREADS" not in cfg.to_env()
+    assert load().ignored == ()

@@ -41,3 +41,10 @@ def test_the_gate_itself_catches_an_offender():
     assert CREATES.search("node.create_publisher(String, '/x', 10)")
     assert IMPORTS_RCLPY.search("from rclpy.node import Node")
     assert not IMPORTS_RCLPY.search("# rclpy is not imported here")
+
+
+def test_gevent_stays_out_of_the_ros_worker_and_the_supervisor():
+    """Only the HTTP workers use gevent (app/http_worker.py patches them after the fork)."""
+    files = [*python_files("rosworker"), REPO / "app" / "supervisor.py", REPO / "app" / "children.py"]
+    offenders = [str(p.relative_to(REPO)) for p in files if "gevent" in p.read_text()]
+    assert not offenders, f"gevent named outside the HTTP workers: {offenders}"

@@ -257,7 +257,7 @@ def test_ping_and_stats_never_wait_behind_a_queue_of_short_tasks():
     flood = ctx.socket(zmq.DEALER)
     flood.setsockopt(zmq.LINGER, 0)
     flood.connect(protocol.endpoint(gw.runtime_dir))
-    client = gw.rosworker()
+    client = gw.rosworker_client()
     try:
         for rid in range(400):
             flood.send(msgpack.packb({"v": 1, "id": rid, "cmd": "debug_sleep",

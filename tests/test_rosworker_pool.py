@@ -358,7 +358,7 @@ def test_the_byte_budget_bounds_the_pool_with_image_topics(nodes, gateway):
         provider = gw.get("/health").json()["x-medkit-data-provider"]
         assert provider["pool_bytes_cap"] == cap
         assert 0 < provider["pool_bytes"] <= cap
-    client = gw.rosworker()
+    client = gw.rosworker_client()
     try:
         details = client.call("stats")["details"]
     finally:

@@ -88,7 +88,7 @@ def test_an_unused_publisher_expires(gateway):
     host = gw.host()
     r = gw.put(f"/components/{host}/data{topic}", json={"type": "std_msgs/msg/Bool", "data": {"data": True}})
     assert r.status_code == 200, r.text
-    client = gw.rosworker()
+    client = gw.rosworker_client()
     try:
         poll_until(lambda: client.call("stats")["details"]["publishers_expired"] >= 1, 15,
                    message="the publisher expired")
@@ -111,7 +111,7 @@ def test_a_put_waiting_for_its_subscribers_at_shutdown_is_answered_not_published
         f"/components/{host}/data{topic}", json={"type": "std_msgs/msg/Bool", "data": {"data": True}},
         timeout=40)))
     put.start()
-    client = gw.rosworker()
+    client = gw.rosworker_client()
     try:
         poll_until(lambda: client.call("stats")["details"]["publishes_waiting"] == 1, 10,
                    message="the PUT waiting for its subscribers")

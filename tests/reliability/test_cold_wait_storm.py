@@ -46,8 +46,9 @@ def test_excess_cold_callers_are_shed_at_once_while_warm_reads_and_health_stay_f
     nodes.append(RosNode({"node": "cw_silent", "publish": [
         {"topic": t, "type": "std_msgs/msg/String", "rate": 0.001} for t in SILENT]}))
     nodes.append(publisher("cw_warm", WARM, "std_msgs/msg/Float64", rate=20, counter="data"))
+    # Every caller is served at once: the default 2 workers x 1000 connections hold them all.
     gw = gateways("--cold-wait-cap", str(CAP), "--sample-timeout", str(SAMPLE_TIMEOUT),
-                  "--threads", str(CALLERS), "--log-level", "warning")
+                  "--log-level", "warning")
     host = gw.get("/components").json()["items"][0]["id"]
     base = f"/api/v1/components/{host}/data"
     poll_until(lambda: len(gw.get("/apps/cw_silent/data").json()["items"]) >= CALLERS, 30,

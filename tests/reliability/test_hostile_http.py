@@ -480,9 +480,13 @@ def health_answers(port: int, attempts: int = 3, timeout: float = 3.0) -> list[i
 
 
 def test_slow_clients_do_not_starve_the_http_workers(gateways):
-    """Clients that send half a head and stall hold no thread (app/gunicorn_worker.py)."""
-    gw = gateways("--workers", "1", "--threads", "2", "--log-level", "warning")
-    socks = slow_clients(gw.port, 4)
+    """Clients that send half a head and stall hold no thread (app/http_worker.py).
+
+    One worker holding at most 64 connections; more stalled clients than the
+    whole gateway used to have threads (2 x 8).
+    """
+    gw = gateways("--workers", "1", "--worker-connections", "64", "--log-level", "warning")
+    socks = slow_clients(gw.port, 24)
     try:
         time.sleep(0.5)
         answers = health_answers(gw.port, attempts=1)
@@ -491,13 +495,13 @@ def test_slow_clients_do_not_starve_the_http_workers(gateways):
             s.close()
     record("slow clients direct", requests=len(answers),
            statuses=dict(collections.Counter(str(a) for a in answers)),
-           note="4 stalled connections vs 1 worker x 2 threads, no proxy")
+           note="24 stalled connections vs 1 worker x 64 connections, no proxy")
     assert answers == [200] * len(answers), answers
 
 
 def test_idle_connections_do_not_starve_the_http_workers(gateways):
     """Connections that send nothing (port scans, browser preconnects) hold no thread."""
-    gw = gateways("--log-level", "warning")  # the default 2 workers x 8 threads
+    gw = gateways("--log-level", "warning")  # the default 2 workers x 1000 connections
     idle = [socket.create_connection(("127.0.0.1", gw.port), timeout=5) for _ in range(200)]
     try:
         time.sleep(0.5)
@@ -507,7 +511,7 @@ def test_idle_connections_do_not_starve_the_http_workers(gateways):
             s.close()
     record("idle connections direct", requests=len(answers),
            statuses=dict(collections.Counter(str(a) for a in answers)),
-           note="200 connections that send nothing vs 2 workers x 8 threads, no proxy")
+           note="200 connections that send nothing vs 2 workers x 1000 connections, no proxy")
     assert answers == [200] * len(answers), answers
 
 
@@ -515,7 +519,7 @@ def test_slow_clients_through_nginx_do_not_starve_the_gateway(gateways, tmp_path
     from tests.test_nginx import Nginx, nginx_binary
 
     nginx_binary()
-    gw = gateways("--workers", "1", "--threads", "2", "--log-level", "warning")
+    gw = gateways("--workers", "1", "--worker-connections", "64", "--log-level", "warning")
     nginx = Nginx(gw.port, tmp_path / "nginx")
     try:
         socks = slow_clients(nginx.port, 40)
@@ -530,7 +534,7 @@ def test_slow_clients_through_nginx_do_not_starve_the_gateway(gateways, tmp_path
         nginx.stop()
     record("slow/idle clients via nginx", requests=len(answers),
            statuses=dict(collections.Counter(str(a) for a in answers)),
-           note="40 stalled + 150 idle connections on nginx in front of 1 worker x 2 threads")
+           note="40 stalled + 150 idle connections on nginx in front of 1 worker x 64 connections")
     assert answers == [200] * len(answers), answers
 
 

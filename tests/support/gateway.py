@@ -8,6 +8,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+import psutil
 import requests
 
 from .procs import Proc, free_port, poll_until
@@ -18,11 +19,12 @@ BIN = Path(sys.executable).parent
 class Gateway(Proc):
     """``sovd-gateway`` on a free loopback port with a private runtime dir.
 
-    Waits until ``/api/v1/health`` answers with ``worker_alive: true``.
+    Waits until ``/api/v1/health`` answers with ``worker_alive: true``.  With
+    ``log_path`` (the bench) its output goes to that file, not through a reader thread.
     """
 
     def __init__(self, *args: str, env: dict | None = None, timeout: float = 60.0,
-                 runtime_dir: str | None = None):
+                 runtime_dir: str | None = None, log_path: str | None = None):
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.api = self.url + "/api/v1"
@@ -31,18 +33,17 @@ class Gateway(Proc):
         os.chmod(self.runtime_dir, 0o700)
         argv = [str(BIN / "sovd-gateway"), "--bind", f"127.0.0.1:{self.port}",
                 "--runtime-dir", self.runtime_dir, *args]
-        super().__init__(argv, env=env, name="sovd-gateway")
+        super().__init__(argv, env=env, name="sovd-gateway", log_path=log_path)
         try:
             poll_until(self._healthy, timeout, interval=0.1, message="gateway health")
         except AssertionError:
+            output = self.tail(60)
             self.stop()
-            raise AssertionError("gateway did not become healthy; output:\n"
-                                 + "\n".join(self.output[-60:])) from None
+            raise AssertionError("gateway did not become healthy; output:\n" + output) from None
 
     def _healthy(self) -> bool:
         if self.proc.poll() is not None:
-            raise AssertionError(f"sovd-gateway exited with {self.proc.returncode}:\n"
-                                 + "\n".join(self.output[-60:]))
+            raise AssertionError(f"sovd-gateway exited with {self.proc.returncode}:\n" + self.tail(60))
         r = requests.get(self.api + "/health", timeout=2)
         return r.status_code == 200 and r.json()["x-medkit-subscription-executor"]["worker_alive"]
 
@@ -50,17 +51,14 @@ class Gateway(Proc):
         """The id of the host component (every topic can be read through it)."""
         return self.get("/components").json()["items"][0]["id"]
 
-    def rosworker(self):
-        """A client of this gateway's ROS worker socket (close it when done)."""
+    def rosworker_client(self):
+        """A client of this gateway's ROS worker sockets (close it when done)."""
         from ipc.client import RosWorkerClient
 
         return RosWorkerClient.for_runtime_dir(self.runtime_dir)
 
     def rosworker_pid(self) -> int:
-        import psutil
-
-        return next(c.pid for c in psutil.Process(self.pid).children()
-                    if "sovd-rosworker" in " ".join(c.cmdline()))
+        return self.rosworker().pid
 
     def get(self, path: str, **kw) -> requests.Response:
         kw.setdefault("timeout", 15)
@@ -69,6 +67,32 @@ class Gateway(Proc):
     def put(self, path: str, **kw) -> requests.Response:
         kw.setdefault("timeout", 15)
         return requests.put(self.api + path, **kw)
+
+    def _children(self) -> list[psutil.Process]:
+        try:
+            return psutil.Process(self.pid).children()
+        except psutil.NoSuchProcess:
+            return []
+
+    def rosworker(self) -> psutil.Process:
+        """The ROS worker process (a child of the supervisor)."""
+        for p in self._children():
+            try:
+                if any("rosworker" in part for part in p.cmdline()):
+                    return p
+            except psutil.NoSuchProcess:
+                continue
+        raise RuntimeError("no ROS worker process under the gateway")
+
+    def http_workers(self) -> list[psutil.Process]:
+        """gunicorn's worker processes (children of the gunicorn master)."""
+        for p in self._children():
+            try:
+                if "gunicorn" in " ".join(p.cmdline()):
+                    return p.children()
+            except psutil.NoSuchProcess:
+                continue
+        return []
 
     def stop(self, timeout: float = 15.0) -> int:
         code = super().stop(timeout)

@@ -54,7 +54,7 @@ class EventStream:
         self.sock.settimeout(left)
         try:
             data = self.sock.recv(65536)
-        except (TimeoutError, socket.timeout):
+        except TimeoutError:
             return False
         except OSError:
             data = b""
