@@ -376,7 +376,9 @@ class _PerProcess:
 
 def _worker_stopping() -> bool:
     """True once the HTTP worker this process is has begun to stop (its streams must end)."""
-    return False
+    from .http_worker import stopping
+
+    return stopping().is_set()
 
 
 def init_app(app: Flask) -> None:

@@ -36,6 +36,12 @@ def endpoint(runtime_dir: str) -> str:
     return "ipc://" + os.path.join(runtime_dir, EVENTS_SOCKET_NAME)
 
 
+def endpoint_beside(work_endpoint: str) -> str:
+    """The events socket beside a work socket (``.../rosworker.sock`` → ``.../rosworker-events.sock``)."""
+    head, sep, _ = work_endpoint.rpartition("/")
+    return f"{head}{sep}{EVENTS_SOCKET_NAME}" if sep else work_endpoint + "-events"
+
+
 def data_key(interval: str, mode: str, topic: str) -> bytes:
     """The key of a topic's frames at one interval and bytes mode (topic names hold no ``|``)."""
     return f"d|{interval}|{mode}|{topic}|".encode()

@@ -2,6 +2,13 @@
 
     sovd-probe [--runtime-dir DIR | --endpoint URL] [--timeout S] [--json] COMMAND
       ping | stats | graph | sample TOPIC | evict TOPIC
+      | watch TOPIC [--interval fast|normal|slow] [--bytes array|base64] [--count N] [--duration S]
+
+``watch`` prints the frames the ROS worker publishes for TOPIC on its events
+channel (what cyclic-subscription streams are made of), one per line, until
+Ctrl-C, ``--count`` frames or ``--duration`` seconds; it makes a subscription
+of its own for that time (under the pseudo-app ``sovd-probe``) and deletes it
+on the way out.
 
 Human-readable output by default, one JSON document with ``--json``.
 Exit codes (for scripts and container health checks)::
@@ -25,7 +32,7 @@ import os
 import sys
 from typing import Any
 
-from . import protocol
+from . import events, protocol
 from .client import RosWorkerClient
 from .errors import IpcError
 
@@ -56,10 +63,17 @@ def build_parser() -> argparse.ArgumentParser:
         _common(p, suppress=True)
         if name == "stats":
             p.add_argument("--fail-degraded", action="store_true", help="exit 1 when the worker is degraded")
-    for name, text in (("sample", "read one sample of TOPIC"), ("evict", "drop TOPIC from the pool")):
+    for name, text in (("sample", "read one sample of TOPIC"), ("evict", "drop TOPIC from the pool"),
+                       ("watch", "print TOPIC's frames from the events channel as they come")):
         p = sub.add_parser(name, help=text)
         p.add_argument("topic", metavar="TOPIC")
         _common(p, suppress=True)
+        if name == "watch":
+            p.add_argument("--interval", choices=tuple(events.INTERVALS), default="normal")
+            p.add_argument("--bytes", choices=("array", "base64"), default="array", dest="bytes_mode")
+            p.add_argument("--count", type=int, default=0, metavar="N", help="stop after N frames")
+            p.add_argument("--duration", type=int, default=600, metavar="S",
+                           help="stop after S seconds (default 600; at most max_stream_duration)")
     return parser
 
 
@@ -139,6 +153,11 @@ def main(argv: list[str] | None = None) -> int:
         return _fail(args, "unavailable", f"no ROS worker socket at {endpoint[len('ipc://'):]} "
                      "(is the gateway running with this runtime dir, and may you enter it?)")
     client = RosWorkerClient(endpoint)
+    if cmd == "watch":
+        try:
+            return _watch(args, client, endpoint)
+        finally:
+            client.close()
     try:
         result = client.call(cmd, cmd_args, timeout=timeout)
     except IpcError as exc:
@@ -155,6 +174,84 @@ def main(argv: list[str] | None = None) -> int:
             print("sovd-probe: the ROS worker is degraded", file=sys.stderr)
         return EXIT_ERROR
     return EXIT_OK
+
+
+WATCHER = "sovd-probe"  # a pseudo-app: never the id of a real one (node names have no "-")
+
+
+def _watch(args: argparse.Namespace, client: RosWorkerClient, endpoint: str) -> int:
+    import signal
+    import time
+
+    import zmq
+
+    from .topics import InvalidTopic, normalize_topic
+
+    try:
+        topic = normalize_topic(args.topic)
+    except InvalidTopic as exc:
+        return _fail(args, "invalid-topic", str(exc))
+    if args.count < 0 or args.duration <= 0:
+        print("sovd-probe: --count must be >= 0 and --duration > 0", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        sub = client.call("sub_create", {
+            "collection": "apps", "entity_id": WATCHER, "resource": f"/api/v1/apps/{WATCHER}/data{topic}",
+            "topic": topic, "bytes": args.bytes_mode, "interval": args.interval, "duration": args.duration,
+        }, timeout=args.timeout)
+    except IpcError as exc:
+        return _fail(args, exc.code, exc.message, exc.params)
+    stop = []
+    old = signal.signal(signal.SIGINT, lambda *_: stop.append(True))
+    ctx = zmq.Context()
+    sock = ctx.socket(zmq.SUB)
+    sock.setsockopt(zmq.LINGER, 0)
+    for key in (sub["key"], events.CONTROL_KEY + sub["id"].encode()):
+        sock.setsockopt(zmq.SUBSCRIBE, key)
+    sock.connect(events.endpoint_beside(endpoint))
+    shown = 0
+    until = time.monotonic() + args.duration
+    try:
+        while not stop and time.monotonic() < until and (not args.count or shown < args.count):
+            if not sock.poll(200):
+                continue
+            frames = sock.recv_multipart()
+            meta = protocol.unpack(frames[1])
+            if frames[0] != sub["key"]:  # a control event: the subscription is gone
+                if meta.get("event") in ("deleted", "expired"):
+                    break
+                continue
+            shown += 1
+            _print_frame(args, topic, meta, frames[2] if len(frames) > 2 else b"{}")
+    finally:
+        signal.signal(signal.SIGINT, old)
+        sock.close()
+        ctx.term()
+        try:
+            client.call("sub_delete", {"collection": "apps", "entity_id": WATCHER, "id": sub["id"]},
+                        timeout=args.timeout)
+        except IpcError:
+            pass  # gone already (expired, or the worker restarted without it)
+    return EXIT_OK
+
+
+def _print_frame(args: argparse.Namespace, topic: str, meta: dict[str, Any], data: bytes) -> None:
+    from datetime import UTC, datetime
+
+    stamp = datetime.fromtimestamp(meta.get("ts", 0) / 1e9, UTC).strftime("%H:%M:%S.%f")[:-3]
+    if args.json:
+        out = {k: v for k, v in meta.items()}
+        if "error" not in meta:
+            out["data"] = json.loads(data)
+        print(json.dumps(out, ensure_ascii=False), flush=True)
+    elif "error" in meta:
+        print(f"{stamp} {topic} error: {meta['error'].get('message')} [{meta['error'].get('code')}]", flush=True)
+    else:
+        what = meta.get("status")
+        if meta.get("reason"):
+            what += f" ({meta['reason']})"
+        print(f"{stamp} {topic} [{meta.get('type')}] {what}: {data.decode('utf-8', 'replace')[:2000]}",
+              flush=True)
 
 
 def _fail(args: argparse.Namespace, code: str, message: str, params: dict | None = None) -> int:

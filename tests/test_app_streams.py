@@ -8,6 +8,8 @@ stream, SIGTERM with open streams) are at the end, each on its own gateway.
 
 from __future__ import annotations
 
+import http.client
+import json
 import os
 import re
 import selectors
@@ -147,14 +149,14 @@ def _worker_of(gw, local_port: int) -> int:
 
 
 def test_a_subscription_made_through_one_worker_streams_through_another(gw):
+    body = json.dumps({"resource": f"/api/v1/apps/{APP}/data{TOPIC}", "interval": "normal", "duration": 60})
     for _ in range(40):
-        session = requests.Session()
-        r = session.post(gw.api + BASE, json={"resource": f"/api/v1/apps/{APP}/data{TOPIC}",
-                                              "interval": "normal", "duration": 60}, timeout=10)
-        assert r.status_code == 201
-        sub = r.json()
-        made_by = _worker_of(gw, next(iter(session.adapters["http://"].poolmanager.pools.values()))
-                             .pool.queue[-1].sock.getsockname()[1])
+        conn = http.client.HTTPConnection("127.0.0.1", gw.port, timeout=10)
+        conn.request("POST", "/api/v1" + BASE, body=body, headers={"Content-Type": "application/json"})
+        r = conn.getresponse()
+        sub = json.loads(r.read())
+        assert r.status == 201, sub
+        made_by = _worker_of(gw, conn.sock.getsockname()[1])   # the connection is still open
         stream = open_stream(gw, sub)
         try:
             streamed_by = _worker_of(gw, stream.local_port)
@@ -164,7 +166,7 @@ def test_a_subscription_made_through_one_worker_streams_through_another(gw):
                 return
         finally:
             stream.close()
-            session.close()
+            conn.close()
             requests.delete(gw.api + f"{BASE}/{sub['id']}", timeout=10)
     pytest.fail("every stream landed on the worker that made its subscription")
 

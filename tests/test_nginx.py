@@ -19,6 +19,7 @@ import requests
 
 from tests.support.gateway import Gateway
 from tests.support.procs import REPO, Proc, free_port, poll_until, publisher
+from tests.support.sse import EventStream
 
 SITE = REPO / "systemd" / "nginx-sovd-gateway.conf"
 IN_CI = os.environ.get("CI", "").lower() == "true"
@@ -177,3 +178,22 @@ def test_upstream_connections_are_reused(stack):
     assert conns, "no kept-alive upstream connection"
     assert len(conns) <= 4
     assert "upstream prematurely closed" not in nginx.error_log()
+
+
+def test_event_streams_pass_through_nginx_frame_by_frame(stack):
+    gw, nginx = stack
+    comp = requests.get(nginx.url + "/api/v1/components", timeout=10).json()["items"][0]["id"]
+    r = requests.post(f"{nginx.url}/api/v1/components/{comp}/cyclic-subscriptions", timeout=10, json={
+        "resource": f"/api/v1/components/{comp}/data{TOPIC}", "interval": "normal", "duration": 60})
+    assert r.status_code == 201, r.text
+    sub = r.json()
+    with EventStream(nginx.port, sub["event_source"]) as stream:
+        assert stream.status == 200
+        assert stream.headers["content-type"].startswith("text/event-stream")
+        events = [stream.next(timeout=10) for _ in range(6)]
+    assert all("payload" in e or "error" in e for e in events)
+    # Frame by frame, not held back until nginx's buffers fill or the stream ends: the six
+    # frames arrived over about a second (200 ms apart), not all at once.
+    assert stream.arrivals[5] - stream.arrivals[0] > 0.5, stream.arrivals
+    assert requests.delete(f"{nginx.url}/api/v1/components/{comp}/cyclic-subscriptions/{sub['id']}",
+                           timeout=10).status_code == 204

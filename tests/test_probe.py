@@ -191,3 +191,30 @@ def test_stopped_worker_exits_3(tmp_path):
         os.kill(proc.pid, signal.SIGCONT)
         client.close()
         proc.stop()
+
+
+def test_watch_prints_frames_from_the_events_channel_and_cleans_up(worker, level_pub):
+    client = RosWorkerClient.for_runtime_dir(worker.runtime_dir)
+    try:
+        poll_until(lambda: client.call("sample", {"topic": TOPIC, "timeout_ms": 2000}, timeout=5)["status"]
+                   == "data", 30, message="the topic pooled with data")
+        r = probe("--runtime-dir", worker.runtime_dir, "watch", TOPIC, "--interval", "fast", "--count", "5",
+                  "--json")
+        assert r.returncode == 0, r.stderr
+        frames = [json.loads(line) for line in r.stdout.splitlines()]
+        assert len(frames) == 5
+        assert all(f["status"] == "data" and f["data"] == {"data": 42.5} for f in frames)
+        stamps = [f["ts"] for f in frames]
+        assert stamps == sorted(stamps) and len(set(stamps)) == 5   # five ticks, not one frame five times
+        r = probe("--runtime-dir", worker.runtime_dir, "watch", TOPIC, "--count", "2")
+        assert r.returncode == 0, r.stderr
+        assert len(r.stdout.splitlines()) == 2 and "[std_msgs/msg/Float32] data" in r.stdout
+        # The probe's subscriptions are gone with it.
+        assert client.call("sub_list", {"collection": "apps", "entity_id": "sovd-probe"})["items"] == []
+    finally:
+        client.close()
+
+
+def test_watch_of_a_bad_topic_exits_1(worker):
+    r = probe("--runtime-dir", worker.runtime_dir, "watch", "1bad")
+    assert r.returncode == 1 and "invalid-topic" in r.stderr
