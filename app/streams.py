@@ -56,6 +56,7 @@ TICK = 0.05                # seconds between the ticker's rounds
 HEARTBEAT_LOST = 3.0       # seconds without a heartbeat before the ROS worker counts as gone
 REPORT_EVERY = 1.0
 REPORT_TIMEOUT = 0.5
+SILENT_CHECK = 2.0         # seconds without frames (worker up) before a stream's subscription is looked up
 
 
 UNAVAILABLE = IpcError("unavailable", "The ROS worker is not running; data frames resume when it is back")
@@ -85,6 +86,7 @@ class Stream:
     def __init__(self, hub: StreamHub, sub: dict[str, Any]):
         self.hub = hub
         self.id: str = sub["id"]
+        self.collection: str = sub["collection"]
         self.entity_id: str = sub["entity_id"]
         self.topic: str = sub["topic"]
         self.key: bytes = sub["key"]
@@ -94,6 +96,7 @@ class Stream:
         self.wake = gevent.event.Event()
         self.ended = False
         self.last_frame = time.monotonic()
+        self.next_check = 0.0
 
     @property
     def period(self) -> float:
@@ -145,9 +148,10 @@ class Stream:
 
 class StreamHub:
     def __init__(self, runtime_dir: str, report: Callable[[dict[str, int]], None],
-                 stopping: Callable[[], bool] = lambda: False):
+                 lookup: Callable[[Stream], None], stopping: Callable[[], bool] = lambda: False):
         self.runtime_dir = runtime_dir
         self._report = report                  # sends counters to the ROS worker (may raise IpcError)
+        self._lookup = lookup                  # asks the ROS worker for a stream's subscription (IpcError)
         self._stopping = stopping              # true once this HTTP worker is shutting down
         self.by_key: dict[bytes, set[Stream]] = {}
         self.by_id: dict[str, set[Stream]] = {}
@@ -327,6 +331,8 @@ class StreamHub:
                         for stream in list(streams):
                             if now - stream.last_frame >= stream.period:
                                 stream.push(error_frame(stream, UNAVAILABLE))
+                elif self.by_id:
+                    self._check_silent(now)
                 if now >= self._next_report:
                     self._next_report = now + REPORT_EVERY
                     self._send_report()
@@ -334,6 +340,24 @@ class StreamHub:
                 raise
             except Exception:
                 log.exception("stream ticker failed a round")
+
+    def _check_silent(self, now: float) -> None:
+        """Streams that get no frames while the ROS worker is there: is their subscription gone?
+
+        (A ROS worker killed before it saved a new subscription comes back without it.)
+        """
+        for streams in list(self.by_id.values()):
+            for stream in list(streams):
+                if now - stream.last_frame >= max(SILENT_CHECK, 5 * stream.period) and now >= stream.next_check:
+                    stream.next_check = now + SILENT_CHECK
+                    gevent.spawn(self._verify, stream)
+
+    def _verify(self, stream: Stream) -> None:
+        try:
+            self._lookup(stream)
+        except IpcError as exc:
+            if exc.code == "no-such-subscription":
+                stream.end(error_frame(stream, exc))
 
     def _send_report(self) -> None:
         counters = dict(self.counters)
@@ -360,13 +384,17 @@ class _PerProcess:
 
     def get(self) -> StreamHub:
         if self.pid != os.getpid():
-            self.hub = StreamHub(self.runtime_dir, self._report, _worker_stopping)
+            self.hub = StreamHub(self.runtime_dir, self._report, self._lookup, _worker_stopping)
             self.hub.start()
             self.pid = os.getpid()
         return self.hub
 
     def _report(self, counters: dict[str, int]) -> None:
         self.ros.call("streams_report", counters, timeout=REPORT_TIMEOUT)
+
+    def _lookup(self, stream: Stream) -> None:
+        self.ros.call("sub_get", {"collection": stream.collection, "entity_id": stream.entity_id,
+                                  "id": stream.id}, timeout=REPORT_TIMEOUT)
 
     def close(self) -> None:
         if self.hub is not None and self.pid == os.getpid():

@@ -157,7 +157,11 @@ class Worker:
         if cfg.idle_safety_net:
             every(cfg.idle_sweep_tick, pool.sweep_idle)
             every(cfg.idle_sweep_tick, publishers.sweep_idle)
-        every(STATE_SAVE_EVERY, lambda: state.save(pool.restart_topics(), graph.nodes, streams.saved()))
+        def save_state() -> None:
+            state.save(pool.restart_topics(), graph.nodes, streams.saved())
+
+        every(STATE_SAVE_EVERY, save_state)
+        streams.on_change = save_state
         if rewarm:
             self._rewarm(executor, pool, rewarm, time.monotonic() + REWARM_FOR)
         streams.restore(subscriptions)

@@ -30,6 +30,7 @@ import logging
 import os
 import secrets
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -98,6 +99,9 @@ class StreamRegistry:
         self._expiry: dict[str, Timer] = {}
         self._pub: zmq.Socket | None = None
         self._reports: dict[int, tuple[float, dict[str, int]]] = {}
+        # Called after every change of the registry: the restart state is saved at once, so that
+        # a subscription that was answered survives a ROS worker killed right after.
+        self.on_change: Callable[[], None] = lambda: None
         stats.max_subscriptions = max_subscriptions
 
     # ---- set-up (ROS thread, before the loop) ---------------------------------------------
@@ -143,6 +147,7 @@ class StreamRegistry:
                            expires_at_ns=now + duration * 10**9, created_at_ns=now)
         self._add(sub)
         self.stats.subscriptions_created += 1
+        self.on_change()
         return sub.wire()
 
     def get(self, collection: str, entity_id: str, sub_id: str) -> Subscription:
@@ -168,6 +173,7 @@ class StreamRegistry:
             self._arm_expiry(sub)
         self._watch(sub)
         self._control(sub, "updated")
+        self.on_change()
         return sub.wire()
 
     def delete(self, collection: str, entity_id: str, sub_id: str) -> None:
@@ -197,6 +203,7 @@ class StreamRegistry:
             timer.cancel()
         self.stats.active_subscriptions = len(self.subs)
         self._control(sub, event)
+        self.on_change()
 
     def _arm_expiry(self, sub: Subscription) -> None:
         old = self._expiry.pop(sub.id, None)

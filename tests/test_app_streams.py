@@ -272,3 +272,27 @@ def test_sigterm_ends_every_open_stream_cleanly(robot):
         for s in streams:
             s.close()
         gw.stop()
+
+
+def test_a_stream_whose_subscription_did_not_survive_a_restart_ends(robot):
+    """A ROS worker that comes back without the subscription (its restart state lost it): the stream
+    is told so and ends, instead of staying open and silent."""
+    gw = start_gateway()
+    try:
+        sub = subscribe(gw, "normal")
+        state = os.path.join(gw.runtime_dir, "pool.json")
+        poll_until(lambda: sub["id"] in open(state).read(), 5, message="the subscription saved")
+        with open_stream(gw, sub) as stream:
+            assert "payload" in stream.next(timeout=5)
+            saved = json.load(open(state))
+            saved["subscriptions"] = []
+            with open(state + ".new", "w") as fh:
+                json.dump(saved, fh)
+            os.replace(state + ".new", state)
+            os.kill(gw.rosworker_pid(), signal.SIGKILL)
+            assert stream.ended(timeout=40)
+            last = stream.events[-1]
+            assert last["error"]["error_code"] == "resource-not-found", last
+            assert last["error"]["message"] == "Subscription not found"
+    finally:
+        gw.stop()

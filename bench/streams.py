@@ -1,0 +1,222 @@
+"""The streaming cases of ``make bench``: many SSE streams, their fan-out cost, an image stream.
+
+    python -m bench.streams [--quick] [--streams N]
+
+Each case starts its own publishers (``tests/support/benchpub.py``) beside the
+gateway it is given, makes cyclic subscriptions through the HTTP API and reads
+the streams with ``tests/support/sseload.py`` in two client processes (one
+Python process alone could not read 5,000 frames/s and leave a core to the
+gateway).  Every figure is a ratio or a difference within the run.
+
+| case | how | target |
+|---|---|---|
+| streams | N streams (1,000) on 10 topics at ``normal`` (5,000 frames/s), 30 s; ``/health`` and a warm GET sampled meanwhile | ≥ 99 % of scheduled frames delivered, p99 lateness ≤ 100 ms, /health and warm GET p99 ≤ 50 ms |
+| fan-out | ROS worker CPU with N streams against 10 streams on the same topics | ≤ 1.2 × |
+| image | a 640×480 rgb8 image at 5 Hz streamed at ``fast`` with ``?bytes=base64`` | publish stamp → client p50 ≤ 30 ms |
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import threading
+import time
+from typing import Any
+
+import requests
+
+from tests.support.procs import Proc
+
+from .procs import BenchGateway, cpu_seconds, robot
+
+STREAM_TOPICS = 10
+STREAM_PREFIX = "/bench/stream/t"
+STREAM_APP = "bench_streams"
+IMAGE_APP = "bench_stream_camera"
+IMAGE_TOPIC = "/bench/stream/camera"
+
+TARGETS = {
+    "streams_delivered": 0.99,
+    "streams_lateness_p99_ms": 100.0,
+    "streams_health_p99_ms": 50.0,
+    "streams_warm_p99_ms": 50.0,
+    "fanout_ratio": 1.2,
+    "image_latency_p50_ms": 30.0,
+}
+
+
+def subscribe(gw: BenchGateway, app: str, topic: str, interval: str, duration: int, query: str = "") -> dict:
+    r = requests.post(f"{gw.api}/apps/{app}/cyclic-subscriptions", timeout=10, json={
+        "resource": f"/api/v1/apps/{app}/data{topic}{query}", "interval": interval, "duration": duration})
+    r.raise_for_status()
+    return r.json()
+
+
+def read_streams(gw: BenchGateway, paths: list[str], period: float, open_for: float, measure_from: float,
+                 clients: int = 2, **extra: Any) -> dict[str, Any]:
+    """Read ``paths`` with ``clients`` processes; their summaries merged."""
+    procs = []
+    for i in range(clients):
+        spec = {"port": gw.port, "paths": paths[i::clients], "period": period, "open_for": open_for,
+                "measure_from": measure_from, "connect_rate": 400 // clients, **extra}
+        procs.append(Proc([sys.executable, "-m", "tests.support.sseload", json.dumps(spec)],
+                          name=f"sseload{i}"))
+    outs = []
+    for p in procs:
+        line = p.wait_line(lambda s: s.startswith("{"), open_for + 60)
+        outs.append(json.loads(line))
+        p.stop()
+    merged = {k: sum(o[k] for o in outs) for k in ("opened", "failed", "errors", "events", "delivered",
+                                                   "expected", "cpu_s")}
+    merged["per_stream_min"] = min(o["per_stream_min"] for o in outs)
+    merged["lateness_p99_ms"] = max(o["lateness_ms"]["p99"] for o in outs)
+    merged["lateness_p50_ms"] = statistics.median(o["lateness_ms"]["p50"] for o in outs)
+    merged["lateness_max_ms"] = max(o["lateness_ms"]["max"] for o in outs)
+    merged["stamp_latency_p50_ms"] = statistics.median(
+        [o["stamp_latency_ms"]["p50"] for o in outs if o["stamp_latency_ms"]["n"]] or [float("nan")])
+    merged["stamp_latency_n"] = sum(o["stamp_latency_ms"]["n"] for o in outs)
+    return merged
+
+
+def _poll(url: str, stop: threading.Event, out: list[float]) -> None:
+    """Time ``GET url`` every 100 ms until ``stop`` (one connection, as a monitor would)."""
+    session = requests.Session()
+    while not stop.wait(0.1):
+        t = time.perf_counter()
+        r = session.get(url, timeout=10)
+        if r.status_code == 200:
+            out.append((time.perf_counter() - t) * 1000)
+    session.close()
+
+
+def _p99(values: list[float]) -> float:
+    return sorted(values)[min(len(values) - 1, int(0.99 * (len(values) - 1)))] if values else float("nan")
+
+
+def case_streams(gw: BenchGateway, n: int, seconds: float, quick: bool) -> dict[str, Any]:
+    """N streams over 10 topics at normal, then 10 streams on the same topics (the fan-out reference)."""
+    pub = robot(STREAM_APP, [{"prefix": STREAM_PREFIX, "count": STREAM_TOPICS, "rate": 10, "kind": "small"}])
+    try:
+        topics = [f"{STREAM_PREFIX}{i}" for i in range(STREAM_TOPICS)]
+        _wait_data(gw, STREAM_APP, topics)
+        subs = [subscribe(gw, STREAM_APP, t, "normal", int(seconds + 120)) for t in topics]
+        rw, http = gw.rosworker(), gw.http_workers()
+
+        def run(count: int) -> dict[str, Any]:
+            paths = [subs[i % STREAM_TOPICS]["event_source"] for i in range(count)]
+            measure_from = min(8.0, 2.0 + count / 400)
+            health: list[float] = []
+            warm: list[float] = []
+            stop = threading.Event()
+            pollers = [threading.Thread(target=_poll, args=(f"{gw.api}/health", stop, health)),
+                       threading.Thread(target=_poll, args=(f"{gw.api}/apps/{STREAM_APP}/data{topics[0]}",
+                                                           stop, warm))]
+            result: dict[str, Any] = {}
+
+            def cpu_window():
+                time.sleep(measure_from + 0.5)
+                before = (cpu_seconds(rw), sum(cpu_seconds(p) for p in http))
+                time.sleep(seconds - 1.0)
+                after = (cpu_seconds(rw), sum(cpu_seconds(p) for p in http))
+                result["rosworker_cpu"] = (after[0] - before[0]) / (seconds - 1.0)
+                result["http_cpu"] = (after[1] - before[1]) / (seconds - 1.0)
+                result["rss_http_mb"] = sum(p.memory_info().rss for p in http) / 2**20
+                result["rss_rosworker_mb"] = rw.memory_info().rss / 2**20
+
+            meter = threading.Thread(target=cpu_window)
+            meter.start()
+            for t in pollers:
+                t.start()
+            got = read_streams(gw, paths, 0.2, measure_from + seconds, measure_from)
+            stop.set()
+            for t in pollers:
+                t.join(15)
+            meter.join(seconds + 30)
+            got.update(result)
+            got["health_p99_ms"] = _p99(health)
+            got["warm_p99_ms"] = _p99(warm)
+            got["delivered_ratio"] = got["delivered"] / got["expected"] if got["expected"] else 0.0
+            return got
+
+        many = run(n)
+        few = run(STREAM_TOPICS)
+        for sub in subs:
+            requests.delete(f"{gw.api}/apps/{STREAM_APP}/cyclic-subscriptions/{sub['id']}", timeout=10)
+        frames_per_s = many["delivered"] / max(1e-9, many.get("window_s", seconds)) if "window_s" in many \
+            else many["delivered"] / seconds
+        return {"many": many, "few": few, "streams": n, "seconds": seconds,
+                "fanout_ratio": many["rosworker_cpu"] / few["rosworker_cpu"] if few["rosworker_cpu"] else
+                float("nan"),
+                "http_cpu_us_per_frame": many["http_cpu"] * seconds / max(1, many["delivered"]) * 1e6,
+                "frames_per_s": frames_per_s}
+    finally:
+        pub.stop()
+
+
+def case_image(gw: BenchGateway, seconds: float) -> dict[str, Any]:
+    pub = robot(IMAGE_APP, [{"topic": IMAGE_TOPIC, "rate": 5, "kind": "image"}])
+    try:
+        _wait_data(gw, IMAGE_APP, [IMAGE_TOPIC])
+        sub = subscribe(gw, IMAGE_APP, IMAGE_TOPIC, "fast", int(seconds + 60), "?bytes=base64")
+        got = read_streams(gw, [sub["event_source"]], 0.05, seconds + 2.0, 2.0, clients=1,
+                           stamp_field="header.stamp")
+        requests.delete(f"{gw.api}/apps/{IMAGE_APP}/cyclic-subscriptions/{sub['id']}", timeout=10)
+        return got
+    finally:
+        pub.stop()
+
+
+def _wait_data(gw: BenchGateway, app: str, topics: list[str], timeout: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout
+    for topic in topics:
+        while True:
+            r = requests.get(f"{gw.api}/apps/{app}/data{topic}", timeout=10)
+            if r.status_code == 200 and r.json()["x-medkit"]["status"] == "data":
+                break
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"no data on {topic} through {app}")
+            time.sleep(0.2)
+
+
+def verdicts(streams: dict[str, Any], image: dict[str, Any]) -> dict[str, tuple[float, float, bool]]:
+    many = streams["many"]
+    rows = {
+        "streams_delivered": (many["delivered_ratio"], TARGETS["streams_delivered"], True),
+        "streams_lateness_p99_ms": (many["lateness_p99_ms"], TARGETS["streams_lateness_p99_ms"], False),
+        "streams_health_p99_ms": (many["health_p99_ms"], TARGETS["streams_health_p99_ms"], False),
+        "streams_warm_p99_ms": (many["warm_p99_ms"], TARGETS["streams_warm_p99_ms"], False),
+        "fanout_ratio": (streams["fanout_ratio"], TARGETS["fanout_ratio"], False),
+        "image_latency_p50_ms": (image["stamp_latency_p50_ms"], TARGETS["image_latency_p50_ms"], False),
+    }
+    return {k: (v, t, v >= t if higher else v <= t) for k, (v, t, higher) in rows.items()}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.streams")
+    parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--streams", type=int, default=1000)
+    parser.add_argument("--seconds", type=float, default=30.0)
+    parser.add_argument("--log-dir", default="/tmp/sovd-bench-streams")
+    args = parser.parse_args(argv)
+    from .procs import claim_domain
+
+    claim_domain()
+    import os
+
+    os.makedirs(args.log_dir, exist_ok=True)
+    n, seconds = (50, 4.0) if args.quick else (args.streams, args.seconds)
+    gw = BenchGateway("--max-subscriptions", str(max(1000, n)), log_dir=args.log_dir)
+    try:
+        streams = case_streams(gw, n, seconds, args.quick)
+        image = case_image(gw, 4.0 if args.quick else 20.0)
+    finally:
+        gw.stop()
+    result = {"streams": streams, "image": image, "verdicts": verdicts(streams, image)}
+    print(json.dumps(result, indent=2, default=str))
+    return 0 if args.quick or all(ok for _, _, ok in result["verdicts"].values()) else 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
