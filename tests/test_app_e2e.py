@@ -8,9 +8,11 @@ from __future__ import annotations
 
 import http.client
 import json
+import math
 import os
 import signal
 
+import jsonschema
 import psutil
 import pytest
 
@@ -220,6 +222,60 @@ def test_publish_reaches_a_subscriber(gw, robot):
     assert r.status_code == 400
     r = gw.put(url, json={"type": "std_msgs/msg/Bool", "data": {"no_such_field": 1}}, headers=auth)
     assert r.status_code == 400
+
+
+def same_floats(got: list, want: list) -> bool:
+    """Element-wise equality where NaN equals NaN (and nothing else)."""
+    return len(got) == len(want) and all(
+        (math.isnan(g) and math.isnan(w)) if math.isnan(w) else g == w for g, w in zip(got, want, strict=True))
+
+
+def test_nan_and_infinities_survive_get_and_put(gw):
+    """REP 117: NaN invalid, +inf no return, -inf too close.  GET -> PUT is exact."""
+    nan, inf = float("nan"), float("inf")
+    sensor = publisher("scanner", "scan", "sensor_msgs/msg/LaserScan",
+                       {"header": {"frame_id": "laser"}, "ranges": [1.5, nan, inf, -inf],
+                        "range_min": 0.25, "range_max": inf, "intensities": [-inf, 3.0]},
+                       namespace="/lidar")
+    sink = RosNode({"node": "scan_sink", "namespace": "/lidar",
+                    "subscribe": [{"topic": "replay", "type": "sensor_msgs/msg/LaserScan", "echo": True}]})
+    try:
+        wait_for_apps(gw, {"scanner", "scan_sink"})
+        body = wait_for_data(gw, "/apps/scanner/data/lidar/scan")
+        data = body["data"]
+        assert data["ranges"] == [1.5, "NaN", "Infinity", "-Infinity"], data
+        assert data["range_max"] == "Infinity" and data["range_min"] == 0.25, data
+        assert data["intensities"] == ["-Infinity", 3.0], data
+        # The sample passes the schema the gateway itself gives for its type.
+        items = {i["id"]: i for i in gw.get("/apps/scanner/data").json()["items"]}
+        jsonschema.validate(data, items["/lidar/scan"]["x-medkit"]["type_info"]["schema"])
+
+        url = "/apps/scan_sink/data/lidar/replay"
+        put = {"type": "sensor_msgs/msg/LaserScan", "data": data}
+        auth = {"Authorization": f"Bearer {TOKEN}"}
+
+        def replayed():
+            r = gw.put(url, json=put, headers=auth)
+            assert r.status_code == 200, r.text
+            assert r.json()["data"] == data
+            return [m["data"] for m in sink.echoed() if m["topic"] == "/lidar/replay"]
+
+        got = poll_until(replayed, 30, interval=0.5, message="the sink to receive the replayed scan")[0]
+        assert same_floats(got["ranges"], [1.5, nan, inf, -inf]), got
+        assert got["range_max"] == inf and got["range_min"] == 0.25, got
+        assert same_floats(got["intensities"], [-inf, 3.0]), got
+        assert got["header"]["frame_id"] == "laser"
+        # null still means NaN (medkit's clients write NaN that way); other spellings are refused.
+        r = gw.put(url, json={"type": "sensor_msgs/msg/LaserScan", "data": {"range_max": None}},
+                   headers=auth)
+        assert r.status_code == 200, r.text
+        r = gw.put(url, json={"type": "sensor_msgs/msg/LaserScan", "data": {"ranges": [1.0, "inf"]}},
+                   headers=auth)
+        assert r.status_code == 400 and r.json()["error_code"] == "invalid-request", r.text
+        assert "data.ranges[1]" in r.json()["message"] and '"Infinity"' in r.json()["message"]
+    finally:
+        sensor.stop()
+        sink.stop()
 
 
 def test_publish_disabled_by_default(robot):
