@@ -186,6 +186,31 @@ def test_invalid_topics_through_gunicorn(gw, path):
     assert status == 400 and body["error_code"] == "invalid-parameter"
 
 
+def test_names_the_middleware_refuses_are_400_without_a_traceback(gw):
+    """rmw caps a topic name at 247 characters; longer ones once escaped from rclpy as a 500."""
+    wait_for_apps(gw, {"controller"})
+    auth = {"Authorization": f"Bearer {TOKEN}"}
+    body = {"type": "std_msgs/msg/Bool", "data": {"data": True}}
+    before = len(gw.output)
+    for length in range(248, 256):  # the fully qualified name, leading "/" included
+        data_id = "a" * (length - 1)
+        for r in (gw.get(f"/apps/controller/data/{data_id}"),
+                  gw.get(f"/apps/controller/data//{data_id}"),
+                  gw.put(f"/apps/controller/data/{data_id}", json=body, headers=auth),
+                  gw.put(f"/functions/body/data/body/{'b' * (length - 6)}", json=body, headers=auth)):
+            assert r.status_code == 400, (length, r.request.method, r.text)
+            assert r.json()["error_code"] == "invalid-parameter", r.text
+            assert "247" in r.json()["parameters"]["details"], r.text
+    longest = "a" * 246  # /aaa...: 247 characters, valid
+    r = gw.get(f"/apps/controller/data/{longest}")
+    assert r.status_code == 200 and r.json()["x-medkit"]["status"] == "metadata_only", r.text
+    r = gw.put(f"/apps/controller/data/{longest}", json=body, headers=auth)
+    assert r.status_code == 200, r.text
+    assert gw.get("/health").json()["x-medkit-subscription-executor"]["worker_alive"] is True
+    logged = "\n".join(gw.output[before:])
+    assert "Traceback" not in logged and "ERROR" not in logged, logged[-3000:]
+
+
 def test_topic_not_in_graph_is_metadata_only(gw):
     wait_for_apps(gw, {"temp_sensor"})
     body = sample(gw, "/apps/temp_sensor/data/no/such/topic")
