@@ -5,9 +5,12 @@ Start-up order: settings → runtime dir → lock → rclpy → IPC thread → R
 stops taking work, wakes every waiter, drains what is queued, destroys every
 subscription and publisher and exits 0.
 
-Exit codes: 0 stopped on request, 2 bad settings, 3 cannot boot (lock held
-by another worker, rclpy failed to start): the supervisor does not restart a
-worker that exits 2 or 3.
+Before anything else the worker arms its parent-death signal and exits (1)
+if the supervisor that started it is already gone (``app/pdeathsig.py``).
+
+Exit codes: 0 stopped on request, 1 the supervisor is gone, 2 bad settings,
+3 cannot boot (lock held by another worker, rclpy failed to start): the
+supervisor does not restart a worker that exits 2 or 3.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import time
 from importlib import metadata
 
 EXIT_OK = 0
+EXIT_ORPHANED = 1
 EXIT_CONFIG = 2
 EXIT_CANNOT_BOOT = 3
 STATE_SAVE_EVERY = 0.25  # seconds; only written when it changed
@@ -51,7 +55,11 @@ def parse_args(argv: list[str] | None):
 
 def main(argv: list[str] | None = None) -> int:
     from app import config as config_mod
+    from app import pdeathsig
 
+    if not pdeathsig.arm():
+        print("sovd-rosworker: the supervisor that started it is gone; not starting", file=sys.stderr)
+        return EXIT_ORPHANED
     try:
         cfg = parse_args(argv)
         config_mod.ensure_runtime_dir(cfg.runtime_dir)
