@@ -115,6 +115,11 @@ def http_answers(bind: str, timeout: float = 2.0) -> bool:
         conn.close()
 
 
+# Set by the supervisor for a restarted ROS worker: the attempt number (absent at the first boot).
+# A restarted worker waits a while for the runtime dir's lock (its predecessor may still be dying).
+RESTART_ENV = "SOVD_WORKER_RESTART"
+
+
 def rosworker_argv(runtime_dir: str) -> list[str]:
     """``sovd-rosworker --runtime-dir DIR``: the console script next to our interpreter."""
     script = os.path.join(os.path.dirname(sys.executable), "sovd-rosworker")

@@ -8,15 +8,22 @@ subscription and publisher and exits 0.
 Before anything else the worker arms its parent-death signal and exits (1)
 if the supervisor that started it is already gone (``app/pdeathsig.py``).
 
+The runtime dir's lock: at the first boot a holder is another gateway's
+worker, and the worker refuses at once.  A restarted worker (the supervisor
+sets ``SOVD_WORKER_RESTART``) waits up to ``LOCK_WAIT`` for it: the holder is
+most likely its predecessor, killed but not yet gone.
+
 Exit codes: 0 stopped on request, 1 the supervisor is gone, 2 bad settings,
-3 cannot boot (lock held by another worker, rclpy failed to start): the
-supervisor does not restart a worker that exits 2 or 3.
+3 cannot boot (lock held by another worker, rclpy failed to start).  At the
+first boot the supervisor gives up on 2 or 3; after a restart they count as
+one more failure under its restart limit (the cause may be passing).
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
 import sys
 import time
@@ -26,6 +33,8 @@ EXIT_OK = 0
 EXIT_ORPHANED = 1
 EXIT_CONFIG = 2
 EXIT_CANNOT_BOOT = 3
+LOCK_WAIT = 10.0     # seconds a restarted worker waits for the runtime dir's lock
+LOCK_POLL = 0.05
 STATE_SAVE_EVERY = 0.25  # seconds; only written when it changed
 REWARM_FOR = 30.0    # seconds to keep trying to re-subscribe topics pooled before a restart
 REWARM_RETRY = 0.25
@@ -53,6 +62,16 @@ def parse_args(argv: list[str] | None):
     return config.load(args)
 
 
+def restart_attempt(environ=os.environ) -> int:
+    """Which restart this worker is (0: the first boot), as the supervisor said."""
+    from app.children import RESTART_ENV
+
+    try:
+        return max(0, int(environ.get(RESTART_ENV, "0")))
+    except ValueError:
+        return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     from app import config as config_mod
     from app import pdeathsig
@@ -68,12 +87,13 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_CONFIG
     logging.basicConfig(level=cfg.log_level.upper(), stream=sys.stderr,
                         format="%(asctime)s rosworker[%(process)d] %(levelname)s %(name)s: %(message)s")
-    return Worker(cfg).run()
+    return Worker(cfg, restart=restart_attempt()).run()
 
 
 class Worker:
-    def __init__(self, cfg):
+    def __init__(self, cfg, restart: int = 0):
         self.cfg = cfg
+        self.restart = restart
         self._signal = None
 
     def _on_signal(self, signum, _frame) -> None:
@@ -85,14 +105,10 @@ class Worker:
     def run(self) -> int:
         import zmq
 
-        from ipc.server import IpcServer, LockHeld, RuntimeLock
+        from ipc.server import IpcServer, RuntimeLock
 
         lock = RuntimeLock(self.cfg.runtime_dir)
-        try:
-            lock.acquire()
-        except LockHeld as exc:
-            log.error("%s", exc)
-            print(f"sovd-rosworker: {exc}", file=sys.stderr)
+        if not self._take_lock(lock):
             return EXIT_CANNOT_BOOT
         signal.signal(signal.SIGTERM, self._on_signal)
         signal.signal(signal.SIGINT, self._on_signal)
@@ -100,6 +116,32 @@ class Worker:
             return self._serve(zmq, IpcServer)
         finally:
             lock.release()
+
+    def _take_lock(self, lock) -> bool:
+        """The runtime dir's lock: at once at the first boot, within LOCK_WAIT after a restart."""
+        from ipc.server import LockHeld
+
+        wait = LOCK_WAIT if self.restart else 0.0
+        started = time.monotonic()
+        waiting = False
+        while True:
+            try:
+                lock.acquire()
+            except LockHeld as exc:
+                waited = time.monotonic() - started
+                if waited >= wait:
+                    text = f"{exc} (waited {waited:.1f} s)" if wait else str(exc)
+                    log.error("%s", text)
+                    print(f"sovd-rosworker: {text}", file=sys.stderr)
+                    return False
+                if not waiting:
+                    waiting = True
+                    log.warning("%s; restart %d: waiting up to %g s for it to exit", exc, self.restart, wait)
+                time.sleep(min(LOCK_POLL, wait - waited))
+                continue
+            if waiting:
+                log.info("took the runtime dir's lock after %.1f s", time.monotonic() - started)
+            return True
 
     def _serve(self, zmq, IpcServer) -> int:
         import rclpy
