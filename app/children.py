@@ -2,12 +2,13 @@
 
 A :class:`Child` runs in its own process group (Ctrl-C in a terminal reaches
 only the supervisor, which stops the children in order) with a parent-death
-signal, so a supervisor killed outright does not leave it behind.
+signal, so a supervisor killed outright does not leave it behind.  Nothing
+runs between fork and exec: the child arms that signal itself, from its
+environment (``app/pdeathsig.py``).
 """
 
 from __future__ import annotations
 
-import ctypes
 import errno
 import http.client
 import os
@@ -16,11 +17,15 @@ import socket
 import subprocess
 import sys
 
+from . import pdeathsig
+
 
 class Child:
-    """One child process in its own process group, killed if the supervisor dies."""
+    """One child process in its own process group, killed if the supervisor dies.
 
-    _libc = None
+    ``death_signal`` is what the child arms against the supervisor (``app/pdeathsig.py``);
+    the child's program must call ``pdeathsig.arm()`` first thing.
+    """
 
     def __init__(self, name: str, argv: list[str], env: dict[str, str], death_signal: int):
         self.name = name
@@ -30,18 +35,8 @@ class Child:
         self.proc: subprocess.Popen | None = None
 
     def start(self) -> None:
-        if Child._libc is None and sys.platform.startswith("linux"):
-            Child._libc = ctypes.CDLL(None, use_errno=True)
-        libc, sig, parent = Child._libc, int(self.death_signal), os.getpid()
-
-        def in_child() -> None:  # between fork and exec: prctl only
-            if libc is not None:
-                libc.prctl(1, sig, 0, 0, 0)  # PR_SET_PDEATHSIG: die with the supervisor
-                if os.getppid() != parent:   # it died before prctl took effect
-                    os._exit(1)
-
-        self.proc = subprocess.Popen(self.argv, env=self.env, stdin=subprocess.DEVNULL,
-                                     process_group=0, preexec_fn=in_child)
+        env = {**self.env, **pdeathsig.child_env(self.death_signal)}
+        self.proc = subprocess.Popen(self.argv, env=env, stdin=subprocess.DEVNULL, process_group=0)
 
     @property
     def pid(self) -> int:
@@ -118,6 +113,11 @@ def http_answers(bind: str, timeout: float = 2.0) -> bool:
         return False
     finally:
         conn.close()
+
+
+# Set by the supervisor for a restarted ROS worker: the attempt number (absent at the first boot).
+# A restarted worker waits a while for the runtime dir's lock (its predecessor may still be dying).
+RESTART_ENV = "SOVD_WORKER_RESTART"
 
 
 def rosworker_argv(runtime_dir: str) -> list[str]:

@@ -59,3 +59,6 @@ access_log_format = '%(h)s "%(r)s" %(s)s %(B)s %(M)sms'
 limit_request_line = 8190
 limit_request_fields = 100
 
+
+# The master arms its own parent-death signal (SIGTERM) against the supervisor: app/pdeathsig.py.
+from app.pdeathsig import gunicorn_on_starting as on_starting  # noqa: E402,F401 - a gunicorn hook

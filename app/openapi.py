@@ -128,7 +128,9 @@ SCHEMAS: dict[str, Any] = {
     "DataValue": _obj(
         ["id", "data", "x-medkit"], id=STR,
         data={**OBJ, "description": "the message, fields with their ROS names and real types; "
-                                    "{} without data"},
+                                    "{} without data.  A float that is NaN or +-inf is the string "
+                                    '"NaN", "Infinity" or "-Infinity" (as in the proto3 JSON mapping); '
+                                    "the type's schema in the data listing says so"},
         X_medkit=_obj(
             ["entity_id", "timestamp", "ros2", "publisher_count", "subscriber_count", "status"],
             entity_id=ENTITY_ID,
@@ -142,7 +144,10 @@ SCHEMAS: dict[str, Any] = {
     "DataWriteRequest": _obj(["type", "data"],
                            type={"type": "string", "pattern": "^[A-Za-z][A-Za-z0-9_]*/msg/[A-Za-z][A-Za-z0-9_]*$",
                                  "examples": ["std_msgs/msg/Float32"]},
-                           data={**OBJ, "examples": [{"data": 50.0}]}),
+                           data={**OBJ, "examples": [{"data": 50.0}, {"range_max": "Infinity"}],
+                                 "description": "the message's fields (left out: default).  Float fields "
+                                                'take a number, "NaN", "Infinity" or "-Infinity"; null '
+                                                "is read as NaN"}),
     "DataWriteResult": _obj(
         ["id", "data", "x-medkit"], id=STR, data=OBJ,
         X_medkit=_obj(["ros2", "entity_id", "status", "subscriber_count", "unmatched_subscriber_count"],

@@ -8,15 +8,19 @@ starting
     wait until it answers ``ping`` (``WORKER_BOOT_TIMEOUT``), start gunicorn,
     wait until it answers HTTP on the bind address (``HTTP_BOOT_TIMEOUT``),
     then ``READY=1``.  Any child that dies here ends the service: a worker
-    that cannot boot is not retried in a loop.
+    that cannot boot is not retried in a loop: exit 3 if the first ROS
+    worker exits 2 or 3 (bad settings, another gateway's worker holds the
+    runtime dir) or gunicorn cannot load the app.
 running
     ping the ROS worker (``stats``, short deadline) about every second and send
     ``WATCHDOG=1`` only while it answers within ``watchdog_threshold`` and is
     not degraded.  A worker silent for ``watchdog_grace`` s (or degraded that
     long) is SIGKILLed; a dead worker is restarted with exponential backoff,
     at most ``restart_limit`` times within ``restart_window`` s, then the
-    supervisor gives up (exit 1).  A worker that exits 2 or 3 (bad settings,
-    cannot boot) is never restarted (exit 3).  gunicorn dying ends the
+    supervisor gives up (exit 1).  A restarted worker that exits 2 or 3
+    (cannot boot: its lock still held by a dying predecessor, rclpy failing to
+    start) is one more failure under that limit: its cause may pass, and exit
+    3 would keep systemd from restarting the service.  gunicorn dying ends the
     service (exit 1; systemd's ``Restart=on-failure`` starts it again).
 stopping
     on SIGTERM/SIGINT/SIGHUP (or any failure above): ``STOPPING=1``, SIGTERM
@@ -28,7 +32,8 @@ Signal handlers only record the signal; ``signal.set_wakeup_fd`` wakes the
 main loop, which acts.  Each child runs in its own process group (Ctrl-C in a
 terminal reaches only the supervisor, which stops them in order) with a
 parent-death signal, so a supervisor killed outright does not leave them
-behind.
+behind; each child arms it itself after exec (``app/pdeathsig.py``), as no
+code may run between fork and exec in a process with threads.
 
 Before fork / after fork: ``Supervisor.__init__`` touches nothing
 process-wide; :meth:`Supervisor.run` installs the signal handlers and starts
@@ -50,7 +55,7 @@ from ipc import protocol
 from ipc.client import RosWorkerClient
 from ipc.errors import IpcError
 
-from .children import Child, bind_problem, gunicorn_argv, http_answers, rosworker_argv
+from .children import RESTART_ENV, Child, bind_problem, gunicorn_argv, http_answers, rosworker_argv
 from .config import Config
 from .sdnotify import Notifier, child_env
 
@@ -61,7 +66,7 @@ STARTING, RUNNING, STOPPING, STOPPED = "starting", "running", "stopping", "stopp
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_CANNOT_BOOT = 3
-WORKER_NO_RESTART_CODES = (2, 3)   # the ROS worker's "bad settings" / "cannot boot"
+WORKER_CANNOT_BOOT_CODES = (2, 3)  # the ROS worker's "bad settings" / "cannot boot"
 GUNICORN_BOOT_ERRORS = (3, 4)      # gunicorn's WORKER_BOOT_ERROR / APP_LOAD_ERROR
 
 WORKER_BOOT_TIMEOUT = 60.0   # rclpy import and node creation; slow on a cold disk
@@ -242,8 +247,10 @@ class Supervisor:
 
     def _start_worker(self) -> None:
         self.client.close()  # a fresh socket for each worker
-        self.worker = Child("ROS worker", rosworker_argv(self.cfg.runtime_dir), self._child_env(),
-                            signal.SIGKILL)
+        env = self._child_env()
+        if not self.is_starting():  # a restart: the worker may wait for its predecessor's lock
+            env[RESTART_ENV] = str(self._restart_attempt)
+        self.worker = Child("ROS worker", rosworker_argv(self.cfg.runtime_dir), env, signal.SIGKILL)
         self.worker.start()
         self.worker_ready = False
         self._degraded_since = None
@@ -328,11 +335,14 @@ class Supervisor:
         worker, self.worker = self.worker, None
         was_ready, self.worker_ready = self.worker_ready, False
         how = worker.describe_exit()
-        if worker.returncode in WORKER_NO_RESTART_CODES:
-            self._status(f"ROS worker pid {worker.pid} {how}: it cannot boot "
-                         f"(bad settings, or another ROS worker holds {self.cfg.runtime_dir}; "
-                         "see its message above); not restarting it", logging.ERROR)
-            return EXIT_CANNOT_BOOT
+        if worker.returncode in WORKER_CANNOT_BOOT_CODES:
+            if self.is_starting():  # the first boot: retrying would not help
+                self._status(f"ROS worker pid {worker.pid} {how}: it cannot boot "
+                             f"(bad settings, or another ROS worker holds {self.cfg.runtime_dir}; "
+                             "see its message above); not restarting it", logging.ERROR)
+                return EXIT_CANNOT_BOOT
+            return self._schedule_restart(f"ROS worker pid {worker.pid} {how}: the restarted worker "
+                                          "could not boot (see its message above)")
         if self.is_starting():
             self._status(f"ROS worker pid {worker.pid} {how} before it was ready; not starting",
                          logging.ERROR)

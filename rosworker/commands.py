@@ -3,12 +3,22 @@
 Each handler validates its ``args`` (nothing a client sends may raise
 anything but :class:`IpcError`), then answers with ``task.reply`` now or
 later (a cold sample).  The message shapes are in ``ipc/PROTOCOL.md``.
+
+A topic is checked with ``ipc.topics`` (rmw's rules) first; should rclpy
+still refuse a name, the handlers that hand a topic to rclpy run inside
+:func:`middleware_names`, which makes that the client's ``invalid-topic``
+instead of an internal error with a traceback.
 """
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import time
+from collections.abc import Callable, Iterator
 from typing import Any
+
+from rclpy.exceptions import NameValidationException
 
 from ipc import events
 from ipc.errors import IpcError
@@ -37,6 +47,26 @@ def _string(args: dict, name: str, choices: tuple[str, ...] | None = None, limit
     return value
 
 
+@contextlib.contextmanager
+def middleware_names(topic: str) -> Iterator[None]:
+    """rclpy's name exceptions (``InvalidTopicNameException`` and kin) -> IpcError("invalid-topic")."""
+    try:
+        yield
+    except NameValidationException as exc:
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise IpcError("invalid-topic", f"The ROS middleware refuses the topic name: {reason[:200]}",
+                       {"topic": str(topic)[:300]}) from None
+
+
+def _topic_handler(handler: Callable[[Commands, Task], None]) -> Callable[[Commands, Task], None]:
+    """A handler that hands ``args["topic"]`` to rclpy: its name errors are the client's."""
+    @functools.wraps(handler)
+    def run(self: Commands, task: Task) -> None:
+        with middleware_names(task.args.get("topic")):
+            handler(self, task)
+    return run
+
+
 def _number(args: dict, name: str, default: float, low: float, high: float) -> float:
     value = args.get(name, default)
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not (low <= value <= high):
@@ -63,6 +93,7 @@ class Commands:
             handlers["debug_sleep"] = self.debug_sleep
         executor.handlers.update(handlers)
 
+    @_topic_handler
     def sample(self, task: Task) -> None:
         topic = _topic(task.args)
         timeout = _number(task.args, "timeout_ms", self.sample_timeout * 1000, 0, 30000) / 1000
@@ -71,9 +102,11 @@ class Commands:
             raise IpcError("bad-request", "bytes: expected 'array' or 'base64'")
         self.pool.sample(task, topic, timeout, mode)
 
+    @_topic_handler
     def subscribe(self, task: Task) -> None:
         task.reply(self.pool.subscribe(_topic(task.args)))
 
+    @_topic_handler
     def evict(self, task: Task) -> None:
         topic = _topic(task.args)
         task.reply({"topic": topic, "evicted": self.pool.evict_topic(topic)})
@@ -87,6 +120,7 @@ class Commands:
             raise IpcError("bad-request", "since: expected an integer generation")
         task.reply(self.graph.snapshot(since))
 
+    @_topic_handler
     def publish(self, task: Task) -> None:
         topic = _topic(task.args)
         type_name = task.args.get("type")

@@ -12,8 +12,10 @@ Representation on the JSON side:
 * arrays and sequences -> arrays (empty -> ``[]``); ``byte``/``octet``/``char`` values -> integers;
 * with ``bytes_mode="base64"`` every ``uint8[]``/``byte[]`` (``octet``) array or sequence becomes a
   single standard, padded base64 string instead of an array of integers;
-* JSON cannot represent NaN or +-inf: ``to_json`` writes them as ``null`` (orjson's behaviour) and
-  ``from_plain`` reads ``null`` in a float field back as NaN.
+* JSON has no NaN or +-inf.  As in the proto3 JSON mapping, a non-finite float is the string
+  ``"NaN"``, ``"Infinity"`` or ``"-Infinity"`` (REP 117 gives them different meanings: invalid, no
+  return, too close), in samples and in PUT bodies alike, so a GET -> PUT round trip is exact.
+  ``from_plain`` also reads ``null`` in a float field as NaN: medkit's clients write NaN that way.
 
 rclpy storage (what ``to_plain`` reads, and what ``from_plain`` produces): a ``byte`` is a
 1-length ``bytes`` and ``byte[]`` a list of them; a ``uint8``/``char`` is an ``int``; numeric
@@ -32,6 +34,7 @@ import copy
 import functools
 import importlib
 import importlib.util
+import math
 import os
 import re
 from typing import Any
@@ -148,8 +151,13 @@ _TYPECODES = {"int8": "b", "uint8": "B", "int16": "h", "uint16": "H", "int32": "
 _LABELS = {"float": "float32", "double": "float64", "long double": "float128",
            "boolean": "bool", "octet": "byte"}
 _F32_LIMIT = 2.0**128 * (1 - 2.0**-25)  # the smallest double that rounds to float32 inf
+# Non-finite floats on the JSON side (the proto3 JSON mapping); null is read as NaN too.
+NON_FINITE = ("NaN", "Infinity", "-Infinity")
+_FROM_JSON = {"NaN": math.nan, "Infinity": math.inf, "-Infinity": -math.inf, None: math.nan}
+_SMALL_FLOATS = 48  # float arrays up to this size are encoded as lists (see _numeric)
 _ONE_BYTE = [bytes((i,)) for i in range(256)]
-_EXPECT = {"bool": "a boolean", "int": "an integer", "float": "a number", "octet": "an integer",
+_EXPECT = {"bool": "a boolean", "int": "an integer",
+           "float": 'a number, "NaN", "Infinity" or "-Infinity"', "octet": "an integer",
            "char": "an integer or a 1-character string", "wchar": "a 1-character string",
            "string": "a string", "message": "an object", "array": "an array"}
 
@@ -240,18 +248,44 @@ def _raw_bytes(value: Any) -> Any:
         return bytes(value)
 
 
+def _non_finite(value: float) -> str:
+    """The JSON text of a float that is not finite: "NaN", "Infinity" or "-Infinity"."""
+    return "NaN" if value != value else "Infinity" if value > 0 else "-Infinity"
+
+
+def _float(value: Any) -> float | str:
+    value = float(value)
+    return value if value - value == 0.0 else _non_finite(value)  # x - x is NaN for NaN and +-inf
+
+
 def _numeric(value: Any, fast: bool) -> Any:
-    """array.array / ndarray of numbers -> list, or (fast) a numpy array orjson writes natively."""
+    """array.array / ndarray of numbers -> list, or (fast) a numpy array orjson writes natively.
+
+    A float array holding NaN or +-inf (rare) becomes a list with those values as strings.
+    """
     if not fast:
-        return value.tolist()
+        out = value.tolist()
+        floats = value.typecode in "fd" if isinstance(value, array.array) else value.dtype.kind == "f"
+        return out if not floats or all(map(math.isfinite, out)) else [_float(x) for x in out]
     if isinstance(value, array.array):
         out = numpy.frombuffer(value, dtype=value.typecode)
     else:
         out = numpy.ascontiguousarray(value)
-    if out.dtype.kind == "f" and out.dtype != numpy.float64:
-        # orjson prints float32 with the shortest float32 digits ("0.1"), which parses back to a
-        # different double than float(x) (0.10000000149011612); widening keeps the exact value.
-        out = out.astype(numpy.float64)
+    if out.dtype.kind == "f":
+        # The guard of the fast path: is every value finite?  Small arrays (a covariance) as a
+        # list: its sum is finite if every value is (NaN and inf propagate; only a sum beyond
+        # 1.8e308 needs the exact check), cheaper than any numpy call.  Large ones: vectorised.
+        if out.size <= _SMALL_FLOATS:
+            values = out.tolist()
+            if not math.isfinite(sum(values)) and not all(map(math.isfinite, values)):
+                return [_float(x) for x in values]
+            return values
+        if out.dtype != numpy.float64:
+            # orjson prints float32 with the shortest float32 digits ("0.1"), which parses back to
+            # a different double than float(x) (0.10000000149011612); widening keeps the exact value.
+            out = out.astype(numpy.float64)
+        if numpy.count_nonzero(numpy.isfinite(out)) != out.size:
+            return [_float(x) for x in out.tolist()]
     elif out.dtype.kind not in "iub" or out.dtype.byteorder not in "=|":
         return out.tolist()
     return out
@@ -261,8 +295,9 @@ def _encode(spec: _Spec, value: Any, mode: str, fast: bool) -> Any:
     kind = spec.kind
     if kind == "message":
         return _encode_msg(value, mode, fast)
-    if kind == "float":
-        return float(value)
+    if kind == "float":  # inlined _float(): this is the hot path of float-heavy messages
+        value = float(value)
+        return value if value - value == 0.0 else _non_finite(value)
     if kind == "int":
         return value if type(value) is int else int(value)
     if kind == "bool":
@@ -298,8 +333,9 @@ def to_plain(msg: Any, bytes_mode: str = "array") -> dict[str, Any]:
 def to_json(obj: Any, bytes_mode: str = "array") -> bytes:
     """Encode a message, or a plain dict/list (which may contain messages), as JSON bytes.
 
-    Numeric arrays go to orjson as numpy views (several times faster than lists of ints);
-    NaN and +-inf are written as ``null``.
+    Numeric arrays go to orjson as numpy views (several times faster than lists of ints).
+    NaN and +-inf in a message's float fields are written as "NaN", "Infinity" and "-Infinity";
+    a plain ``float`` outside a message is orjson's business (it writes ``null``).
     """
     _check_mode(bytes_mode)
 
@@ -347,7 +383,8 @@ def _invalid(path: str, problem: str) -> ConversionError:
 
 def _expected(spec: _Spec, value: Any, path: str) -> ConversionError:
     what = "an array or a base64 string" if spec.bytelike else _EXPECT[spec.kind]
-    return _invalid(path, f"expected {what} ({spec.label}), got {_kind(value)}")
+    got = f"string {_short(value, 40)}" if spec.kind == "float" and isinstance(value, str) else _kind(value)
+    return _invalid(path, f"expected {what} ({spec.label}), got {got}")
 
 
 def _int_text(value: int) -> str:
@@ -359,9 +396,9 @@ def _decode(spec: _Spec, value: Any, path: str) -> Any:
     kind = spec.kind
     is_int = isinstance(value, int) and not isinstance(value, bool)
     if kind == "float":
-        if value is None:
-            return float("nan")
         if not (is_int or isinstance(value, float)):
+            if value is None or isinstance(value, str) and value in _FROM_JSON:
+                return _FROM_JSON[value]
             raise _expected(spec, value, path)
         try:
             value = float(value)
@@ -402,6 +439,9 @@ def _decode(spec: _Spec, value: Any, path: str) -> Any:
 def _decode_numbers(item: _Spec, values: list, path: str) -> array.array:
     """list of JSON numbers -> array.array; C-speed when valid, precise message when not."""
     types = set(map(type, values))
+    if item.kind == "float" and not types <= {int, float}:  # "NaN", "Infinity", "-Infinity", null
+        values = [_FROM_JSON.get(x, x) if x is None or type(x) is str else x for x in values]
+        types = set(map(type, values))
     if types <= ({int} if item.kind == "int" else {int, float}):
         try:
             if item.typecode == "B":  # bytes() range-checks ints several times faster
@@ -500,8 +540,9 @@ def _spec_schema(spec: _Spec, mode: str) -> dict[str, Any]:
     if kind in ("int", "octet", "char"):
         lo, hi = (spec.lo, spec.hi) if kind == "int" else (0, 255 if kind == "octet" else 127)
         return {"type": "integer", "minimum": lo, "maximum": hi, "x-ros-type": spec.label}
-    if kind == "float":  # NaN/inf are written as null by to_json
-        return {"type": "number", "x-ros-type": spec.label}
+    if kind == "float":  # NaN and +-inf are strings (see the module docstring)
+        return {"anyOf": [{"type": "number"}, {"type": "string", "enum": list(NON_FINITE)}],
+                "x-ros-type": spec.label}
     if kind == "bool":
         return {"type": "boolean", "x-ros-type": spec.label}
     out = {"type": "string", "x-ros-type": spec.label}

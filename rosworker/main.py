@@ -5,27 +5,38 @@ Start-up order: settings → runtime dir → lock → rclpy → IPC thread → R
 stops taking work, wakes every waiter, drains what is queued, destroys every
 subscription and publisher and exits 0.
 
-Exit codes: 0 stopped on request, 2 bad settings, 3 cannot boot (lock held
-by another worker, rclpy failed to start): the supervisor does not restart a
-worker that exits 2 or 3.
+Before anything else the worker arms its parent-death signal and exits (1)
+if the supervisor that started it is already gone (``app/pdeathsig.py``).
+
+The runtime dir's lock: at the first boot a holder is another gateway's
+worker, and the worker refuses at once.  A restarted worker (the supervisor
+sets ``SOVD_WORKER_RESTART``) waits up to ``LOCK_WAIT`` for it: the holder is
+most likely its predecessor, killed but not yet gone.
+
+Exit codes: 0 stopped on request, 1 the supervisor is gone, 2 bad settings,
+3 cannot boot (lock held by another worker, rclpy failed to start).  At the
+first boot the supervisor gives up on 2 or 3; after a restart they count as
+one more failure under its restart limit (the cause may be passing).
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
 import sys
 import time
 from importlib import metadata
 
 EXIT_OK = 0
+EXIT_ORPHANED = 1
 EXIT_CONFIG = 2
 EXIT_CANNOT_BOOT = 3
+LOCK_WAIT = 10.0     # seconds a restarted worker waits for the runtime dir's lock
 STATE_SAVE_EVERY = 0.25  # seconds; only written when it changed
 REWARM_FOR = 30.0    # seconds to keep trying to re-subscribe topics pooled before a restart
 REWARM_RETRY = 0.25
-LOCK_WAIT = 5.0      # seconds to wait for the runtime lock a dying predecessor may still hold
 # Discovery settles before the socket is bound: at least SETTLE_MIN, until the graph
 # has not changed for SETTLE_QUIET, at most SETTLE_MAX seconds.
 SETTLE_MIN, SETTLE_QUIET, SETTLE_MAX = 1.0, 0.5, 5.0
@@ -50,9 +61,23 @@ def parse_args(argv: list[str] | None):
     return config.load(args)
 
 
+def restart_attempt(environ=os.environ) -> int:
+    """Which restart this worker is (0: the first boot), as the supervisor said."""
+    from app.children import RESTART_ENV
+
+    try:
+        return max(0, int(environ.get(RESTART_ENV, "0")))
+    except ValueError:
+        return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     from app import config as config_mod
+    from app import pdeathsig
 
+    if not pdeathsig.arm():
+        print("sovd-rosworker: the supervisor that started it is gone; not starting", file=sys.stderr)
+        return EXIT_ORPHANED
     try:
         cfg = parse_args(argv)
         config_mod.ensure_runtime_dir(cfg.runtime_dir)
@@ -61,12 +86,13 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_CONFIG
     logging.basicConfig(level=cfg.log_level.upper(), stream=sys.stderr,
                         format="%(asctime)s rosworker[%(process)d] %(levelname)s %(name)s: %(message)s")
-    return Worker(cfg).run()
+    return Worker(cfg, restart=restart_attempt()).run()
 
 
 class Worker:
-    def __init__(self, cfg):
+    def __init__(self, cfg, restart: int = 0):
         self.cfg = cfg
+        self.restart = restart
         self._signal = None
 
     def _on_signal(self, signum, _frame) -> None:
@@ -78,15 +104,10 @@ class Worker:
     def run(self) -> int:
         import zmq
 
-        from ipc.server import LockHeld, RuntimeLock
+        from ipc.server import RuntimeLock
 
         lock = RuntimeLock(self.cfg.runtime_dir)
-        try:
-            # A predecessor that is being killed may hold the lock for a moment longer.
-            lock.acquire(wait=LOCK_WAIT)
-        except LockHeld as exc:
-            log.error("%s", exc)
-            print(f"sovd-rosworker: {exc}", file=sys.stderr)
+        if not self._take_lock(lock):
             return EXIT_CANNOT_BOOT
         signal.signal(signal.SIGTERM, self._on_signal)
         signal.signal(signal.SIGINT, self._on_signal)
@@ -94,6 +115,23 @@ class Worker:
             return self._serve(zmq)
         finally:
             lock.release()
+
+    def _take_lock(self, lock) -> bool:
+        """The runtime dir's lock: at once at the first boot, within LOCK_WAIT after a restart."""
+        from ipc.server import LockHeld
+
+        wait = LOCK_WAIT if self.restart else 0.0
+        started = time.monotonic()
+        try:
+            lock.acquire(wait=wait)
+        except LockHeld as exc:
+            text = f"{exc} (waited {time.monotonic() - started:.1f} s)" if wait else str(exc)
+            log.error("%s", text)
+            print(f"sovd-rosworker: {text}", file=sys.stderr)
+            return False
+        if time.monotonic() - started > 0.1:
+            log.info("took the runtime dir's lock after %.1f s", time.monotonic() - started)
+        return True
 
     def _serve(self, zmq) -> int:
         import rclpy

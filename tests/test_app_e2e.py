@@ -8,9 +8,11 @@ from __future__ import annotations
 
 import http.client
 import json
+import math
 import os
 import signal
 
+import jsonschema
 import psutil
 import pytest
 
@@ -292,6 +294,31 @@ def test_invalid_topics_through_gunicorn(gw, path):
     assert status == 400 and body["error_code"] == "invalid-parameter"
 
 
+def test_names_the_middleware_refuses_are_400_without_a_traceback(gw):
+    """rmw caps a topic name at 247 characters; longer ones once escaped from rclpy as a 500."""
+    wait_for_apps(gw, {"controller"})
+    auth = {"Authorization": f"Bearer {TOKEN}"}
+    body = {"type": "std_msgs/msg/Bool", "data": {"data": True}}
+    before = len(gw.output)
+    for length in range(248, 256):  # the fully qualified name, leading "/" included
+        data_id = "a" * (length - 1)
+        for r in (gw.get(f"/apps/controller/data/{data_id}"),
+                  gw.get(f"/apps/controller/data//{data_id}"),
+                  gw.put(f"/apps/controller/data/{data_id}", json=body, headers=auth),
+                  gw.put(f"/functions/body/data/body/{'b' * (length - 6)}", json=body, headers=auth)):
+            assert r.status_code == 400, (length, r.request.method, r.text)
+            assert r.json()["error_code"] == "invalid-parameter", r.text
+            assert "247" in r.json()["parameters"]["details"], r.text
+    longest = "a" * 246  # /aaa...: 247 characters, valid
+    r = gw.get(f"/apps/controller/data/{longest}")
+    assert r.status_code == 200 and r.json()["x-medkit"]["status"] == "metadata_only", r.text
+    r = gw.put(f"/apps/controller/data/{longest}", json=body, headers=auth)
+    assert r.status_code == 200, r.text
+    assert gw.get("/health").json()["x-medkit-subscription-executor"]["worker_alive"] is True
+    logged = "\n".join(gw.output[before:])
+    assert "Traceback" not in logged and "ERROR" not in logged, logged[-3000:]
+
+
 def test_topic_not_in_graph_is_metadata_only(gw):
     wait_for_apps(gw, {"temp_sensor"})
     body = sample(gw, "/apps/temp_sensor/data/no/such/topic")
@@ -328,6 +355,60 @@ def test_publish_reaches_a_subscriber(gw, robot):
     assert r.status_code == 400
     r = gw.put(url, json={"type": "std_msgs/msg/Bool", "data": {"no_such_field": 1}}, headers=auth)
     assert r.status_code == 400
+
+
+def same_floats(got: list, want: list) -> bool:
+    """Element-wise equality where NaN equals NaN (and nothing else)."""
+    return len(got) == len(want) and all(
+        (math.isnan(g) and math.isnan(w)) if math.isnan(w) else g == w for g, w in zip(got, want, strict=True))
+
+
+def test_nan_and_infinities_survive_get_and_put(gw):
+    """REP 117: NaN invalid, +inf no return, -inf too close.  GET -> PUT is exact."""
+    nan, inf = float("nan"), float("inf")
+    sensor = publisher("scanner", "scan", "sensor_msgs/msg/LaserScan",
+                       {"header": {"frame_id": "laser"}, "ranges": [1.5, nan, inf, -inf],
+                        "range_min": 0.25, "range_max": inf, "intensities": [-inf, 3.0]},
+                       namespace="/lidar")
+    sink = RosNode({"node": "scan_sink", "namespace": "/lidar",
+                    "subscribe": [{"topic": "replay", "type": "sensor_msgs/msg/LaserScan", "echo": True}]})
+    try:
+        wait_for_apps(gw, {"scanner", "scan_sink"})
+        body = wait_for_data(gw, "/apps/scanner/data/lidar/scan")
+        data = body["data"]
+        assert data["ranges"] == [1.5, "NaN", "Infinity", "-Infinity"], data
+        assert data["range_max"] == "Infinity" and data["range_min"] == 0.25, data
+        assert data["intensities"] == ["-Infinity", 3.0], data
+        # The sample passes the schema the gateway itself gives for its type.
+        items = {i["id"]: i for i in gw.get("/apps/scanner/data").json()["items"]}
+        jsonschema.validate(data, items["/lidar/scan"]["x-medkit"]["type_info"]["schema"])
+
+        url = "/apps/scan_sink/data/lidar/replay"
+        put = {"type": "sensor_msgs/msg/LaserScan", "data": data}
+        auth = {"Authorization": f"Bearer {TOKEN}"}
+
+        def replayed():
+            r = gw.put(url, json=put, headers=auth)
+            assert r.status_code == 200, r.text
+            assert r.json()["data"] == data
+            return [m["data"] for m in sink.echoed() if m["topic"] == "/lidar/replay"]
+
+        got = poll_until(replayed, 30, interval=0.5, message="the sink to receive the replayed scan")[0]
+        assert same_floats(got["ranges"], [1.5, nan, inf, -inf]), got
+        assert got["range_max"] == inf and got["range_min"] == 0.25, got
+        assert same_floats(got["intensities"], [-inf, 3.0]), got
+        assert got["header"]["frame_id"] == "laser"
+        # null still means NaN (medkit's clients write NaN that way); other spellings are refused.
+        r = gw.put(url, json={"type": "sensor_msgs/msg/LaserScan", "data": {"range_max": None}},
+                   headers=auth)
+        assert r.status_code == 200, r.text
+        r = gw.put(url, json={"type": "sensor_msgs/msg/LaserScan", "data": {"ranges": [1.0, "inf"]}},
+                   headers=auth)
+        assert r.status_code == 400 and r.json()["error_code"] == "invalid-request", r.text
+        assert "data.ranges[1]" in r.json()["message"] and '"Infinity"' in r.json()["message"]
+    finally:
+        sensor.stop()
+        sink.stop()
 
 
 def test_publish_disabled_by_default(robot):

@@ -105,6 +105,37 @@ def test_body_not_json(client, fw, raw, message):
     assert no_ros_traffic(fw)
 
 
+@pytest.mark.parametrize("raw", [
+    b'{"type": "std_msgs/msg/Float64", "data": {"data": Infinity}}',
+    b'{"type": "std_msgs/msg/Float64", "data": {"data": -Infinity}}',
+    b'{"type": "std_msgs/msg/Float64MultiArray", "data": {"data": [1.0,NaN]}}',
+    b'{"type": "std_msgs/msg/Float64", "data": {"data": 1e999}}',
+    b'{"type": "std_msgs/msg/Float64", "data": {"data": -1e400}}',
+])
+def test_non_finite_json_literals_are_refused_with_the_right_spelling(client, fw, raw):
+    r = client.put(URL, data=raw, content_type="application/json")
+    assert r.status_code == 400
+    body = r.get_json()
+    assert body["error_code"] == "invalid-request" and "JSON" in body["message"]
+    assert '"NaN", "Infinity", "-Infinity"' in body["parameters"]["details"]
+    assert no_ros_traffic(fw)
+
+
+def test_other_invalid_json_gets_no_non_finite_hint(client, fw):
+    r = client.put(URL, data=b'{"type": "std_msgs/msg/String", "data": {"data": "NaN" x}}',
+                   content_type="application/json")
+    assert r.status_code == 400
+    assert "Infinity" not in r.get_json()["parameters"]["details"]
+
+
+def test_non_finite_strings_and_null_are_passed_to_the_worker(client, fw):
+    data = {"ranges": [1.5, "NaN", "Infinity", "-Infinity", None], "range_max": "Infinity"}
+    r = client.put(URL, json={"type": "sensor_msgs/msg/LaserScan", "data": data})
+    assert r.status_code == 200, r.data
+    assert r.get_json()["data"] == data
+    assert fw.calls("publish")[-1]["data"] == data
+
+
 @pytest.mark.parametrize("body, message", [
     ({"data": {"data": True}}, "type: missing required field"),
     ({"type": 5, "data": {}}, "type: must be a string"),

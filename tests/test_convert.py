@@ -18,7 +18,7 @@ from nav_msgs.msg import OccupancyGrid, Odometry
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.serialization import deserialize_message, serialize_message
 from rmw_dds_common.msg import NodeEntitiesInfo
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo, Image, LaserScan
 from std_msgs.msg import (
     Bool,
     Byte,
@@ -27,6 +27,7 @@ from std_msgs.msg import (
     Float32,
     Float32MultiArray,
     Float64,
+    Float64MultiArray,
     Int8,
     Int64,
     String,
@@ -99,12 +100,99 @@ def test_float32_values_are_faithful():
     assert b"0.10000000149011612" in to_json(msg)
 
 
-def test_nan_and_inf_become_null():
-    msg = Float32MultiArray(data=[float("nan"), float("inf"), 1.0])
-    assert orjson.loads(to_json(msg))["data"] == [None, None, 1.0]
-    assert to_json(Float64(data=float("nan"))) == b'{"data":null}'
-    back = from_plain(Float64, {"data": None})
-    assert math.isnan(back.data)
+NAN, INF = float("nan"), float("inf")
+NON_FINITE = {"anyOf": [{"type": "number"}, {"type": "string", "enum": ["NaN", "Infinity", "-Infinity"]}]}
+
+
+def same_floats(got, want) -> bool:
+    """Element-wise equality where NaN equals NaN (and nothing else)."""
+    got, want = list(got), list(want)
+    return len(got) == len(want) and all(
+        (math.isnan(g) and math.isnan(w)) if isinstance(w, float) and math.isnan(w) else g == w
+        for g, w in zip(got, want, strict=True))
+
+
+def scan_with_non_finite() -> LaserScan:
+    """REP 117: NaN is an invalid measurement, +inf no return, -inf too close."""
+    return LaserScan(ranges=[1.5, NAN, INF, -INF], range_min=0.1, range_max=INF,
+                     intensities=[0.5, -INF, NAN, 7.0])
+
+
+def test_non_finite_floats_are_the_proto3_json_strings():
+    scan = scan_with_non_finite()
+    for msg in (scan, roundtrip_wire(scan)):
+        for plain in (to_plain(msg), orjson.loads(to_json(msg))):
+            assert plain["ranges"] == [1.5, "NaN", "Infinity", "-Infinity"]
+            assert plain["intensities"] == [0.5, "-Infinity", "NaN", 7.0]
+            assert plain["range_max"] == "Infinity"
+    assert to_plain(roundtrip_wire(scan))["range_min"] == float(numpy.float32(0.1))
+    assert to_json(Float64(data=NAN)) == b'{"data":"NaN"}'
+    assert to_json(Float64(data=INF)) == b'{"data":"Infinity"}'
+    assert to_json(Float32(data=-INF)) == b'{"data":"-Infinity"}'
+    assert to_json(Float32MultiArray(data=[NAN, INF, 1.0])) == b'{"layout":' + orjson.dumps(
+        to_plain(Float32MultiArray())["layout"]) + b',"data":["NaN","Infinity",1.0]}'
+    odom = Odometry()
+    odom.pose.covariance[0], odom.pose.covariance[35] = INF, NAN  # a fixed-size numpy array
+    cov = orjson.loads(to_json(odom))["pose"]["covariance"]
+    assert cov[0] == "Infinity" and cov[35] == "NaN" and cov[1:35] == [0.0] * 34
+    assert to_plain(odom)["pose"]["covariance"] == cov
+    # a hand-made message may hold a list instead of an array.array
+    listed = Float32MultiArray(data=[1.0, NAN], check_fields=False)
+    listed.data = [1.0, NAN]
+    assert orjson.loads(to_json(listed))["data"] == [1.0, "NaN"]
+
+
+def test_every_non_finite_value_is_found_in_float_arrays():
+    """The fast path's finiteness guard misses no position, length or dtype, and no large value."""
+    rng = random.Random(11)
+    for length in (1, 2, 7, 1000, 100_000):
+        for special, text in ((NAN, "NaN"), (INF, "Infinity"), (-INF, "-Infinity")):
+            pos = rng.randrange(length)
+            for cls in (Float32MultiArray, Float64MultiArray):
+                values = [rng.uniform(-1e3, 1e3) for _ in range(length)]
+                values[pos] = special
+                msg = roundtrip_wire(cls(data=values))
+                out = orjson.loads(to_json(msg))["data"]
+                assert out[pos] == text and sum(isinstance(x, str) for x in out) == 1, (cls, length, pos)
+                assert out[:pos] == [float(x) for x in msg.data[:pos]]
+    # finite values whose squares overflow are still numbers, written exactly
+    big = Float64MultiArray(data=[1e200, -1.7e308, 5e-324, 0.0])
+    assert orjson.loads(to_json(big))["data"] == [1e200, -1.7e308, 5e-324, 0.0]
+    flt_max = float(numpy.finfo(numpy.float32).max)
+    assert orjson.loads(to_json(roundtrip_wire(Float32MultiArray(data=[flt_max] * 3))))["data"] == [flt_max] * 3
+
+
+def test_non_finite_floats_round_trip_exactly():
+    scan = roundtrip_wire(scan_with_non_finite())  # what a subscriber sees: float32 fields rounded
+    text = to_json(scan)
+    for data in (orjson.loads(text), to_plain(scan)):
+        back = roundtrip_wire(from_plain(LaserScan, data))
+        assert same_floats(back.ranges, [1.5, NAN, INF, -INF])
+        assert same_floats(back.intensities, [0.5, -INF, NAN, 7.0])
+        assert back.range_max == INF
+        assert to_json(back) == text  # GET -> PUT -> GET gives the same text
+    for cls, value in ((Float64, NAN), (Float64, INF), (Float64, -INF), (Float32, NAN), (Float32, -INF)):
+        back = roundtrip_wire(from_plain(cls, orjson.loads(to_json(cls(data=value)))))
+        assert same_floats([back.data], [value]), (cls, value)
+    odom = Odometry()
+    odom.pose.covariance[:3] = [NAN, INF, -INF]
+    back = from_plain(Odometry, orjson.loads(to_json(odom)))
+    assert back.pose.covariance.dtype == numpy.float64
+    assert same_floats(back.pose.covariance[:4], [NAN, INF, -INF, 0.0])
+
+
+def test_from_plain_reads_the_non_finite_strings_and_null():
+    assert from_plain(Float32, {"data": "Infinity"}).data == INF
+    assert from_plain(Float64, {"data": "-Infinity"}).data == -INF
+    assert math.isnan(from_plain(Float64, {"data": "NaN"}).data)
+    # medkit's clients write NaN as null: still read as NaN
+    assert math.isnan(from_plain(Float64, {"data": None}).data)
+    for cls in (Float32MultiArray, Float64MultiArray):
+        msg = from_plain(cls, {"data": [1, "NaN", None, "Infinity", "-Infinity", 2.5]})
+        assert msg.data.typecode == ("f" if cls is Float32MultiArray else "d")
+        assert same_floats(roundtrip_wire(msg).data, [1.0, NAN, NAN, INF, -INF, 2.5])
+    grid = from_plain(CameraInfo, {"k": ["Infinity"] + [0.0] * 7 + ["NaN"]})
+    assert grid.k.dtype == numpy.float64 and same_floats(grid.k, [INF] + [0.0] * 7 + [NAN])
 
 
 def test_empty_arrays_are_lists():
@@ -238,7 +326,8 @@ def test_fast_json_path_matches_plain_path():
     odom.pose.covariance[0] = 0.1
     samples = [Image(height=1, data=[1, 2, 3]), Float32MultiArray(data=[0.1, -1e-20, 7.0]),
                UUID(uuid=list(range(16))), odom, OccupancyGrid(data=[-1, 5]),
-               ByteMultiArray(data=[b"\x01", b"\xfe"]), CameraInfo(d=[0.5]), DiagnosticArray()]
+               ByteMultiArray(data=[b"\x01", b"\xfe"]), CameraInfo(d=[0.5]), DiagnosticArray(),
+               scan_with_non_finite(), Float64(data=NAN), CameraInfo(d=[INF, -0.0], k=[NAN] * 9)]
     for msg in samples:
         for m in (msg, roundtrip_wire(msg)):
             for mode in ("array", "base64"):
@@ -268,8 +357,12 @@ def test_from_plain_error_messages():
     cases = [
         (String, "nope", "data: expected an object for std_msgs/msg/String, got string"),
         (String, {"foo": 1}, "data.foo: no such field in std_msgs/msg/String"),
-        (Float32, {"data": "1.5"}, "data.data: expected a number (float32), got string"),
-        (Float32, {"data": True}, "data.data: expected a number (float32), got boolean"),
+        (Float32, {"data": "1.5"}, 'data.data: expected a number, "NaN", "Infinity" or "-Infinity" '
+                                   "(float32), got string '1.5'"),
+        (Float64, {"data": "inf"}, 'data.data: expected a number, "NaN", "Infinity" or "-Infinity" '
+                                   "(float64), got string 'inf'"),
+        (Float32, {"data": True}, 'data.data: expected a number, "NaN", "Infinity" or "-Infinity" '
+                                  "(float32), got boolean"),
         (Float32, {"data": 1e39}, "data.data: 1e+39 is out of range for float32"),
         (Int8, {"data": 128}, "data.data: 128 is out of range for int8 (-128..127)"),
         (Int8, {"data": True}, "data.data: expected an integer (int8), got boolean"),
@@ -291,7 +384,13 @@ def test_from_plain_error_messages():
         (Odometry, {"pose": {"covariance": [0.0] * 35}},
          "data.pose.covariance: exactly 36 items required for float64[36], got 35"),
         (Odometry, {"pose": {"covariance": [0.0] * 35 + ["x"]}},
-         "data.pose.covariance[35]: expected a number (float64), got string"),
+         'data.pose.covariance[35]: expected a number, "NaN", "Infinity" or "-Infinity" (float64), '
+         "got string 'x'"),
+        (Float32MultiArray, {"data": [1.0, "NaN", "-inf"]},
+         'data.data[2]: expected a number, "NaN", "Infinity" or "-Infinity" (float32), '
+         "got string '-inf'"),
+        (Float32MultiArray, {"data": ["Infinity", [1.0]]},
+         'data.data[1]: expected a number, "NaN", "Infinity" or "-Infinity" (float32), got array'),
         (Image, {"data": [1, 2, 256]}, "data.data[2]: 256 is out of range for uint8 (0..255)"),
         (Image, {"data": [1, True]}, "data.data[1]: expected an integer (uint8), got boolean"),
         (Image, {"data": {"a": 1}},
@@ -370,7 +469,8 @@ def _random_json(rng: random.Random, depth: int = 0):
     if pick == 3:
         return rng.choice([0.0, -0.5, 1e39, 1e308, 3.4e38, rng.random()])
     if pick == 4:
-        return rng.choice(["", "x", "123", "\x00", "AAH+/w==", "===", "é" * 300, "\ud800"])
+        return rng.choice(["", "x", "123", "\x00", "AAH+/w==", "===", "é" * 300, "\ud800", "NaN",
+                           "-Infinity"])
     if pick == 5:
         return [rng.randint(0, 300) for _ in range(rng.randrange(40))]
     if pick == 6:
@@ -480,7 +580,9 @@ def test_schema_shape():
     assert props["header"]["properties"]["stamp"]["properties"]["sec"]["minimum"] == -(2**31)
     assert schema(Image, "base64")["properties"]["data"]["type"] == "string"
     cov = schema(Odometry)["properties"]["pose"]["properties"]["covariance"]
-    assert cov["minItems"] == cov["maxItems"] == 36 and cov["items"]["type"] == "number"
+    assert cov["minItems"] == cov["maxItems"] == 36
+    assert cov["items"] == {**NON_FINITE, "x-ros-type": "float64"}
+    assert schema(Float32)["properties"]["data"] == {**NON_FINITE, "x-ros-type": "float32"}
     assert schema(ParameterDescriptor)["properties"]["floating_point_range"]["maxItems"] == 1
     assert schema(NodeEntitiesInfo)["properties"]["node_name"]["maxLength"] == 256
     assert schema(Bool)["properties"]["data"]["type"] == "boolean"
@@ -509,6 +611,19 @@ def test_schema_validates_to_plain_output():
         jsonschema.validate({"foo": 1}, schema(String))
     with pytest.raises(jsonschema.ValidationError):
         jsonschema.validate({"pose": {"covariance": [0.0]}}, schema(Odometry))
+
+
+def test_schema_validates_non_finite_samples():
+    jsonschema = pytest.importorskip("jsonschema")
+    odom = Odometry()
+    odom.pose.covariance[0] = NAN
+    for msg in (scan_with_non_finite(), odom, Float64(data=-INF)):
+        sch = schema(type(msg))
+        jsonschema.validate(orjson.loads(to_json(msg)), sch)
+        jsonschema.validate(to_plain(msg), sch)
+    for bad in ({"range_max": "inf"}, {"range_max": None}, {"ranges": [1.0, "nan"]}, {"ranges": [True]}):
+        with pytest.raises(jsonschema.ValidationError):
+            jsonschema.validate(bad, schema(LaserScan))
 
 
 def test_internal_caches_are_per_class():

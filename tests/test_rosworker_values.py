@@ -83,3 +83,15 @@ def test_a_converted_sample_is_reused_until_a_newer_message_arrives(worker):
         assert again["data_json"] == first["data_json"]
     finally:
         node.stop()
+
+
+def test_nan_and_infinities_are_told_apart(worker):
+    """REP 117: NaN (invalid), +inf (no return) and -inf (too close) must not all become null."""
+    nan, inf = float("nan"), float("inf")
+    text, _ = read(worker, "sensor_msgs/msg/LaserScan",
+                   {"ranges": [1.5, nan, inf, -inf], "range_min": 0.25, "range_max": inf,
+                    "intensities": [nan, 2.0]})
+    data = orjson.loads(text)
+    assert data["ranges"] == [1.5, "NaN", "Infinity", "-Infinity"]
+    assert data["range_max"] == "Infinity" and data["range_min"] == 0.25
+    assert data["intensities"] == ["NaN", 2.0]

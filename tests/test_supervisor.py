@@ -19,6 +19,7 @@ import psutil
 import pytest
 import requests
 
+from ipc import protocol
 from ipc.client import RosWorkerClient
 from tests.support.gateway import Gateway
 from tests.support.procs import Proc, free_port, poll_until, publisher
@@ -234,9 +235,13 @@ def test_children_get_resolved_settings_and_no_notify_socket(notify):
         assert env["SOVD_WORKERS"] == "1"
         assert env["SOVD_RUNTIME_DIR"] == gw.runtime_dir
         assert "NOTIFY_SOCKET" not in env
+        # each child arms its own parent-death signal against the supervisor (app/pdeathsig.py)
+        assert env["SOVD_SUPERVISOR_PID"] == str(gw.pid)
+        assert env["SOVD_PARENT_DEATH_SIGNAL"] == str(int(signal.SIGKILL))
         http = [c for c in psutil.Process(gw.pid).children() if c.pid != w.pid]
         assert len(http) == 1 and "gunicorn" in " ".join(http[0].cmdline())
         assert "NOTIFY_SOCKET" not in http[0].environ()
+        assert http[0].environ()["SOVD_PARENT_DEATH_SIGNAL"] == str(int(signal.SIGTERM))
         # gunicorn's own "READY=1 / Gunicorn arbiter booted" must never reach the notify socket.
         assert not notify.has(lambda f: "Gunicorn" in f)
         assert len(http[0].children()) == 1  # --workers 1
@@ -417,6 +422,73 @@ def test_restart_limit_ends_the_service():
         assert "restart_limit 2): giving up" in text
         assert text.count("restarting ROS worker (attempt") == 2
     finally:
+        gw.stop()
+
+
+# A process that takes the ROS worker's lock as soon as it is free and holds it until SIGTERM:
+# a predecessor that is dying but not yet gone, as seen by the restarted worker.
+HOLD_LOCK = """
+import fcntl, sys, time
+fh = open(sys.argv[1], "a+")
+print("TRYING", flush=True)
+deadline = time.monotonic() + 30
+while True:
+    try:
+        fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        break
+    except BlockingIOError:
+        if time.monotonic() > deadline:
+            sys.exit("never got the lock")
+        time.sleep(0.001)
+print("LOCKED", flush=True)
+time.sleep(120)
+"""
+
+
+def hold_lock_after_kill(gw: Gateway, worker: int) -> Proc:
+    """SIGKILL the ROS worker; a stand-in for its dying self takes its lock at once."""
+    holder = Proc([sys.executable, "-c", HOLD_LOCK, os.path.join(gw.runtime_dir, protocol.LOCK_NAME)],
+                  name="lock holder")
+    holder.wait_line(lambda line: line == "TRYING", 20)
+    os.kill(worker, signal.SIGKILL)
+    holder.wait_line(lambda line: line == "LOCKED", 20)
+    return holder
+
+
+def test_restarted_worker_waits_for_the_lock_of_its_dying_predecessor():
+    gw = Gateway()
+    holder = None
+    try:
+        old = worker_pid(gw)
+        holder = hold_lock_after_kill(gw, old)
+        gw.wait_line(lambda line: "restart 1: waiting up to" in line, 30)
+        holder.stop()  # the predecessor is finally gone
+        poll_until(lambda: alive_again(gw, old), 30, interval=0.1, message="ROS worker back")
+        assert gw.proc.poll() is None
+        text = "\n".join(gw.output)
+        assert "took the runtime dir's lock after" in text
+        assert "exited with code 3" not in text and "(attempt 1/5)" in text
+    finally:
+        if holder is not None:
+            holder.stop()
+        assert gw.stop() == 0
+
+
+def test_cannot_boot_after_a_restart_counts_under_the_restart_limit():
+    """Exit 3 of a restarted worker is a failure to retry, not "cannot boot": systemd would not restart."""
+    gw = Gateway("--restart-limit", "1", "--restart-window", "300")
+    holder = None
+    try:
+        holder = hold_lock_after_kill(gw, worker_pid(gw))
+        code = poll_until(lambda: gw.proc.poll(), 60, message="the supervisor gives up")
+        assert code == 1, "\n".join(gw.output[-30:])
+        text = "\n".join(gw.output)
+        assert "restart 1: waiting up to" in text and "exited with code 3" in text
+        assert "restart_limit 1): giving up" in text
+        assert "not restarting" not in text
+    finally:
+        if holder is not None:
+            holder.stop()
         gw.stop()
 
 

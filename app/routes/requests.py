@@ -24,6 +24,7 @@ from .common import config
 
 _BAD_PERCENT = re.compile(r"%(?![0-9A-Fa-f]{2})")
 _MESSAGE_TYPE = re.compile(r"[A-Za-z][A-Za-z0-9_]*/msg/[A-Za-z][A-Za-z0-9_]*")
+_NON_FINITE_LITERAL = re.compile(rb"[:,\[]\s*-?(?:NaN|Infinity)\b")  # JavaScript's spellings
 MAX_TYPE_LENGTH = 256
 BYTES_MODES = ("array", "base64")
 # Room left in one IPC frame for the envelope around a published message.
@@ -139,8 +140,11 @@ def publish_body() -> tuple[str, dict[str, Any]]:
     try:
         body = orjson.loads(raw)
     except orjson.JSONDecodeError as exc:
+        details = str(exc)
+        if "infinity" in details or _NON_FINITE_LITERAL.search(raw):  # 1e999, or NaN/Infinity
+            details += '; JSON has no NaN or infinity: write them as "NaN", "Infinity", "-Infinity"'
         raise ApiError(400, "invalid-request", "Request body is not valid JSON",
-                       {"details": str(exc)}) from None
+                       {"details": details}) from None
     if not isinstance(body, dict):
         raise ApiError(400, "invalid-request", "Request body must be a JSON object",
                        {"details": 'expected {"type": "pkg/msg/Name", "data": {...}}'})
