@@ -39,7 +39,6 @@ log = logging.getLogger("sovd.rosworker.ipc")
 
 WATCHDOG_CHECK = 0.05      # seconds between looks at the ROS thread's current task
 READ_BATCH = 1000          # requests read in one go before the reader returns
-LOCK_RETRY = 0.05
 
 
 class LockHeld(RuntimeError):
@@ -51,23 +50,16 @@ class RuntimeLock:
         self.path = os.path.join(runtime_dir, protocol.LOCK_NAME)
         self._fh = None
 
-    def acquire(self, wait: float = 0.0) -> None:
-        """Take the lock, waiting up to ``wait`` seconds for a holder that is going away."""
+    def acquire(self) -> None:
         fh = open(self.path, "a+")  # noqa: SIM115 - held while the worker runs
-        deadline = time.monotonic() + wait
-        while True:
-            try:
-                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                break
-            except OSError:
-                if time.monotonic() < deadline:
-                    time.sleep(LOCK_RETRY)
-                    continue
-                fh.seek(0)
-                holder = fh.read().strip() or "another process"
-                fh.close()
-                raise LockHeld(f"another ROS worker (pid {holder}) already serves "
-                               f"{os.path.dirname(self.path)}; refusing to take its socket") from None
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            fh.seek(0)
+            holder = fh.read().strip() or "another process"
+            fh.close()
+            raise LockHeld(f"another ROS worker (pid {holder}) already serves {os.path.dirname(self.path)}; "
+                           "refusing to take its socket") from None
         fh.seek(0)
         fh.truncate()
         fh.write(str(os.getpid()))

@@ -34,6 +34,7 @@ EXIT_ORPHANED = 1
 EXIT_CONFIG = 2
 EXIT_CANNOT_BOOT = 3
 LOCK_WAIT = 10.0     # seconds a restarted worker waits for the runtime dir's lock
+LOCK_POLL = 0.05
 STATE_SAVE_EVERY = 0.25  # seconds; only written when it changed
 REWARM_FOR = 30.0    # seconds to keep trying to re-subscribe topics pooled before a restart
 REWARM_RETRY = 0.25
@@ -122,16 +123,25 @@ class Worker:
 
         wait = LOCK_WAIT if self.restart else 0.0
         started = time.monotonic()
-        try:
-            lock.acquire(wait=wait)
-        except LockHeld as exc:
-            text = f"{exc} (waited {time.monotonic() - started:.1f} s)" if wait else str(exc)
-            log.error("%s", text)
-            print(f"sovd-rosworker: {text}", file=sys.stderr)
-            return False
-        if time.monotonic() - started > 0.1:
-            log.info("took the runtime dir's lock after %.1f s", time.monotonic() - started)
-        return True
+        waiting = False
+        while True:
+            try:
+                lock.acquire()
+            except LockHeld as exc:
+                waited = time.monotonic() - started
+                if waited >= wait:
+                    text = f"{exc} (waited {waited:.1f} s)" if wait else str(exc)
+                    log.error("%s", text)
+                    print(f"sovd-rosworker: {text}", file=sys.stderr)
+                    return False
+                if not waiting:
+                    waiting = True
+                    log.warning("%s; restart %d: waiting up to %g s for it to exit", exc, self.restart, wait)
+                time.sleep(min(LOCK_POLL, wait - waited))
+                continue
+            if waiting:
+                log.info("took the runtime dir's lock after %.1f s", time.monotonic() - started)
+            return True
 
     def _serve(self, zmq) -> int:
         import rclpy
