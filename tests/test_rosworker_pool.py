@@ -314,10 +314,14 @@ def test_lru_eviction_never_cuts_a_cold_waiter_short(nodes, gateway):
     waiter.start()
     poll_until(lambda: gw.get("/health").json()["x-medkit-data-provider"]["concurrent_cold_waits"] == 1,
                5, message="a cold waiter")
-    # The pool is full (cap 1) with the waited-on entry: reading another topic must not evict it.
-    assert gw.get(f"/components/{host}/data{warm}").json()["x-medkit"]["status"] == "data"
+    # The pool is full (cap 1) with the waited-on entry: reading another topic must not evict it;
+    # that read is told to come back (503 pool-busy) instead.
+    busy = gw.get(f"/components/{host}/data{warm}")
+    assert busy.status_code == 503, busy.text
+    assert busy.json()["vendor_code"] == "x-medkit-pool-busy" and busy.headers["Retry-After"].isdigit()
     waiter.join(15)
     assert answers[0].json()["x-medkit"]["reason"] == "timeout"   # not "evicted"
+    assert gw.get(f"/components/{host}/data{warm}").status_code == 200   # room again once it is over
 
 
 def test_the_gateways_own_publisher_does_not_keep_a_topic_alive(nodes, gateway):
