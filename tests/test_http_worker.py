@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import signal
 import socket
+import sys
 import threading
 import time
 
@@ -20,7 +21,7 @@ import pytest
 import requests
 
 from tests.support.gateway import Gateway
-from tests.support.procs import poll_until
+from tests.support.procs import Proc, free_port, poll_until
 
 HEADER_TIMEOUT = 2.0
 BODY_TIMEOUT = 2.0
@@ -316,6 +317,36 @@ def test_a_stream_ends_with_a_last_frame_when_its_worker_is_told_to_stop():
         poll_until(lambda: gw.get("/health").status_code == 200, 30, message="health after the restart")
     finally:
         gw.stop()
+
+
+def test_max_requests_ends_streams_as_a_stop_does(tmp_path):
+    """gunicorn's max_requests (reached by other requests) is a graceful stop: the stream ends too.
+
+    gunicorn alone with the gateway's config (no ROS worker is needed for these routes).
+    """
+    port = free_port()
+    env = {"SOVD_BIND": f"127.0.0.1:{port}", "SOVD_RUNTIME_DIR": str(tmp_path), "SOVD_WORKERS": "1",
+           "SOVD_DEBUG_COMMANDS": "1", "SOVD_SHUTDOWN_GRACE": "60", "SOVD_LOG_LEVEL": "info"}
+    gunicorn = Proc([sys.executable, "-m", "gunicorn", "-c", "python:app.gunicorn_conf", "--max-requests", "5",
+                     "app.wsgi:create_app()"], env=env, name="gunicorn")
+    base = f"http://127.0.0.1:{port}/api/v1"
+    try:
+        poll_until(lambda: requests.get(base + "/x-sovd-debug/worker", timeout=2).ok, 30, message="gunicorn up")
+        first = requests.get(base + "/x-sovd-debug/worker", timeout=5).json()["pid"]  # requests 1 and 2
+        frames: list[str] = []
+        reader = threading.Thread(target=stream_until_closed,
+                                  args=(base + "/x-sovd-debug/stream?interval=0.05", frames, 30))
+        reader.start()  # request 3
+        poll_until(lambda: frames.count("tick") >= 2, 10, message="the stream is flowing")
+        for _ in range(2):  # requests 4 and 5: the worker is done after this one
+            assert requests.get(base + "/version-info", timeout=5).ok
+        reader.join(15)  # far below the 60 s grace
+        assert not reader.is_alive(), "the stream did not end when max_requests was reached"
+        assert frames[-1] == "stopping", frames[-5:]
+        poll_until(lambda: requests.get(base + "/x-sovd-debug/worker", timeout=2).json()["pid"] != first, 30,
+                   message="a new worker after max_requests")
+    finally:
+        gunicorn.stop()
 
 
 def test_sigterm_to_the_gateway_ends_streams_and_idle_connections_without_waiting_for_the_grace():
