@@ -288,7 +288,9 @@ class RosWorkerClient:
                 raise IpcError("unavailable", f"The ROS worker went away while handling {cmd!r}; "
                                               "retry shortly", {"command": cmd})
             try:
-                reply = protocol.unpack(sock.recv(zmq.NOBLOCK), protocol.MAX_REPLY_FRAME)
+                # Not copied out of libzmq's message: unpacking copies what it keeps (a sample's
+                # JSON), and a large sample (an image) is then one transient buffer, not two.
+                reply = protocol.unpack(sock.recv(zmq.NOBLOCK, copy=False).buffer, protocol.MAX_REPLY_FRAME)
             except zmq.Again:
                 continue
             except ValueError:

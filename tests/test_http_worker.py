@@ -306,6 +306,35 @@ def test_a_body_the_app_does_not_read_is_drained_or_the_connection_dropped(gw):
         assert answers.next()[0] == 200
 
 
+def test_a_kept_alive_connection_may_idle_for_keepalive_not_header_timeout(tmp_path):
+    """Between requests the bound is gunicorn's keepalive (nginx reuses such connections), then it is dropped.
+
+    gunicorn alone with the gateway's config and a short keepalive (3 s) next to a 1 s header timeout.
+    """
+    port = free_port()
+    env = {"SOVD_BIND": f"127.0.0.1:{port}", "SOVD_RUNTIME_DIR": str(tmp_path), "SOVD_WORKERS": "1",
+           "SOVD_HEADER_TIMEOUT": "1", "SOVD_LOG_LEVEL": "warning"}
+    gunicorn = Proc([sys.executable, "-m", "gunicorn", "-c", "python:app.gunicorn_conf", "--keep-alive", "3",
+                     "app.wsgi:create_app()"], env=env, name="gunicorn")
+    version = b"GET /api/v1/version-info HTTP/1.1\r\nHost: x\r\n\r\n"
+    try:
+        poll_until(lambda: requests.get(f"http://127.0.0.1:{port}/api/v1/version-info", timeout=2).ok, 30,
+                   message="gunicorn up")
+        with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
+            s.settimeout(HANG)
+            s.sendall(version)
+            assert read_response(s)[0] == 200
+            # Idle past the header timeout: not dropped (a server closing early would show here) ...
+            assert not closed_by_server(s, 1.5)
+            s.sendall(version)
+            s.settimeout(HANG)
+            assert read_response(s)[0] == 200
+            # ... but dropped once the keepalive has passed.
+            assert closed_by_server(s, 3 + HANG)
+    finally:
+        gunicorn.stop()
+
+
 # --------------------------------------------------------------------------------- stopping
 def stream_until_closed(url: str, frames: list[str], timeout: float) -> None:
     with requests.get(url, stream=True, timeout=timeout) as r:
