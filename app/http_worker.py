@@ -10,8 +10,8 @@ the master) but only import gevent.
 One worker serves every connection on one event loop: each connection is a
 greenlet from a pool of ``worker_connections`` (a stalled or idle client
 costs a few KiB, not a thread), and a request waiting on the ROS worker
-waits on a ``zmq.green`` socket (``ipc/client.py``).  Every read from a
-client has a deadline:
+waits for its socket on the event loop (``ipc/client.py``,
+``ipc/greenwaits.py``).  Every read from a client has a deadline:
 
 - the **request head** (request line and headers, whatever their size):
   ``header_timeout`` seconds from the accept, or, on a kept-alive

@@ -11,7 +11,11 @@ Its ROS programs live beside the tests' own, in ``tests/support/`` (only
 - :mod:`tests.support.oldsampler` — the old subscribe-per-request design, in rclpy;
 - :mod:`tests.support.ddsfloor` — a bare rclpy process holding subscriptions without spinning.
 
+and, beside the gateway, :mod:`tests.support.echoworker`: the process behind the
+echo route (``--debug-commands``), the pure IPC hop the warm sample is compared with.
+
 Helpers of its own:
 
-- :mod:`bench.load` — ``wrk`` (or the Python fallback) and the 1-connection latency client.
+- :mod:`bench.load` — ``wrk`` (or the Python fallback) and the 1-connection latency client;
+- :mod:`bench.procs` — helper processes and CPU figures (the rest comes from ``tests/support``).
 """

@@ -5,7 +5,9 @@
 Starts, in a private ROS domain with localhost-only discovery: the demo
 robot (``demo/robot.py``), a real ``sovd-gateway`` (console script, default
 settings, log level ``warning`` so that gunicorn writes no access log line
-per request), and per case its own publishers (``tests/support/benchpub.py``).  Then
+per request, ``--debug-commands`` for the echo route), the echo process
+(``tests/support/echoworker.py``), and per case its own publishers
+(``tests/support/benchpub.py``).  Then
 it measures every case below, prints the table and writes it as JSON to
 ``bench/results/bench-<UTC timestamp>.json``.  Every target is a ratio or a
 difference between figures of the same run.
@@ -14,6 +16,7 @@ difference between figures of the same run.
 |---|---|
 | floor | ``GET /api/v1/version-info`` (touches no ROS worker), 8 and 1 connections |
 | warm sample | ``GET .../data/powertrain/engine/temperature`` (10 Hz, pooled), 8 and 1 connections |
+| echo route | ``GET /api/v1/x-sovd-debug/echo``: one round trip through the same HTTP stack and IPC client to a process that answers at once (``tests/support/echoworker.py``), 8 and 1 connections: the pure hop |
 | IPC hop | ``GET /api/v1/health`` (one ``stats`` round trip, no ROS work), 1 connection: report only |
 | old design | ``tests/support/oldsampler.py``: create a subscription, wait for a message, destroy it |
 | cold sample | the first HTTP read of a fresh 10 Hz topic, one topic per read |
@@ -21,10 +24,10 @@ difference between figures of the same run.
 | idle cost | ROS worker CPU, 50 pooled topics at 100 Hz, no readers, next to ``tests/support/ddsfloor.py`` |
 | memory | ROS worker RSS before and with 256 pooled topics |
 
-Floor and warm sample are measured in alternating rounds (floor -c8,
-sample -c8, floor -c1, sample -c1, health -c1, six times); each target is the median over
-the rounds of the paired ratio or difference, so that a slow moment of the
-machine does not land on one side only.  The gateway's CPU per request is
+Floor, warm sample and echo route are measured in alternating rounds (floor
+-c8, sample -c8, echo -c8, floor -c1, sample -c1, echo -c1, health -c1, six
+times); each target is the median over the rounds of the paired ratio or
+difference, so that a slow moment of the machine does not land on one side only.  The gateway's CPU per request is
 recorded beside (load-independent).
 
 Exit status: 0 every target met, 2 some target missed, 1 the run itself
@@ -57,11 +60,13 @@ from typing import Any
 import psutil
 import requests
 
+from app.routes.debug import echo_endpoint
 from ipc.client import RosWorkerClient
-from tests.support.procs import Proc, poll_until
+from tests.support.gateway import Gateway
+from tests.support.procs import Proc, poll_until, private_ros_domain
 
 from . import load as loadgen
-from .procs import BenchGateway, claim_domain, cpu_seconds, measure_cpu, robot, ros_helper
+from .procs import cpu_seconds, measure_cpu, robot, ros_helper
 
 RESULTS = Path(__file__).resolve().parent / "results"
 WARM_TOPIC = "/powertrain/engine/temperature"   # demo robot, sensor_msgs/msg/Temperature, 10 Hz
@@ -76,6 +81,8 @@ QUICK = {"rounds": 1, "load_s": 1.0, "warmup_s": 0.0, "image_s": 1.0, "old_n": 3
 TARGETS = {
     "warm_rps_ratio": 0.7,        # warm sample 8 conn ≥ 0.7 × floor
     "warm_p50_extra_ms": 0.3,     # warm sample 1 conn p50 ≤ floor p50 + 0.3 ms
+    "warm_echo_rps_ratio": 0.85,  # warm sample 8 conn ≥ 0.85 × echo route
+    "warm_echo_p50_extra_ms": 0.15,  # warm sample 1 conn p50 ≤ echo route p50 + 0.15 ms
     "old_speedup": 100.0,         # old design p50 ≥ 100 × warm p50
     "cold_p50_ms": 150.0,
     "image_p50_ms": 30.0,
@@ -97,7 +104,7 @@ class Bench:
             self.p["rounds"] = args.rounds
         self.rows: list[dict[str, Any]] = []
         self.procs: list[Proc] = []
-        self.gw: BenchGateway | None = None
+        self.gw: Gateway | None = None
         self.ipc: RosWorkerClient | None = None
         self.load: loadgen.Load | None = None
         self.work_dir = tempfile.mkdtemp(prefix="sovd-bench-logs-")
@@ -106,7 +113,7 @@ class Bench:
 
     # ---- infrastructure ----
     def start(self) -> None:
-        domain = claim_domain()
+        domain = private_ros_domain()
         log(f"ROS_DOMAIN_ID={domain}, localhost-only discovery; logs in {self.work_dir}")
         if self.args.python_load:
             wrk, note = None, "Python fallback forced (--python-load)"
@@ -115,8 +122,12 @@ class Bench:
         self.load = loadgen.Load(wrk, note)
         log(f"load generator: {self.load.name} {note}")
         self.procs.append(ros_helper_demo())
-        self.gw = BenchGateway("--log-level", "warning", *self.args.gateway_args.split(),
-                               log_dir=self.work_dir)
+        self.gw = Gateway("--log-level", "warning", "--debug-commands", *self.args.gateway_args.split(),
+                          log_path=os.path.join(self.work_dir, "gateway.log"))
+        echo = Proc([sys.executable, "-m", "tests.support.echoworker", echo_endpoint(self.gw.runtime_dir)],
+                    name="echo worker")
+        self.procs.append(echo)
+        echo.wait_line(lambda line: line == "READY", 30)
         self.ipc = RosWorkerClient.for_runtime_dir(self.gw.runtime_dir)
         comps = requests.get(self.gw.api + "/components", timeout=5).json()["items"]
         self.host_id = comps[0]["id"]
@@ -228,9 +239,10 @@ class Bench:
         return result
 
     def case_floor_and_warm(self) -> None:
-        """Floor and warm sample in alternating rounds; targets on the median of paired rounds.
+        """Floor, warm sample and echo route in alternating rounds; targets on the median of paired rounds.
 
-        Each round measures floor -c8, warm -c8, floor -c1, warm -c1 back to back, so each
+        Each round measures floor -c8, warm -c8, echo -c8, floor -c1, warm -c1, echo -c1 and
+        health -c1 back to back, so each
         ratio (throughput) and difference (p50) compares figures taken seconds apart; the
         verdict uses the median over the rounds of these paired figures, which drift in the
         machine's load does not decide.  The gateway's own CPU per request (ROS worker and
@@ -239,28 +251,35 @@ class Bench:
         p = self.p
         floor_url = self.gw.api + "/version-info"
         warm_url = self.url(WARM_TOPIC, f"apps/{WARM_APP}")
+        echo_url = self.gw.api + "/x-sovd-debug/echo"
         self.wait_data(warm_url)
+        poll_until(lambda: requests.get(echo_url, timeout=5).status_code == 200, 10, message="the echo route")
         if p["warmup_s"]:
-            self._load(floor_url, 8, p["warmup_s"])
-            self._load(warm_url, 8, p["warmup_s"])
+            for url in (floor_url, warm_url, echo_url):
+                self._load(url, 8, p["warmup_s"])
         health_url = self.gw.api + "/health"
-        runs: dict[str, list[loadgen.LoadResult]] = {"floor8": [], "warm8": [], "floor1": [], "warm1": [],
-                                                     "hop1": []}
+        order = (("floor8", floor_url, 8), ("warm8", warm_url, 8), ("echo8", echo_url, 8),
+                 ("floor1", floor_url, 1), ("warm1", warm_url, 1), ("echo1", echo_url, 1),
+                 ("hop1", health_url, 1))
+        runs: dict[str, list[loadgen.LoadResult]] = {key: [] for key, _, _ in order}
         inside_before = self.call("stats")["details"]["commands"].get("sample", {"count": 0, "time_us": 0})
-        ratios, extras, hops = [], [], []
+        ratios, extras, hops, echo_ratios, echo_extras, echo_hops = [], [], [], [], [], []
         for i in range(p["rounds"]):
-            for key, url, conns in (("floor8", floor_url, 8), ("warm8", warm_url, 8),
-                                    ("floor1", floor_url, 1), ("warm1", warm_url, 1),
-                                    ("hop1", health_url, 1)):
+            for key, url, conns in order:
                 runs[key].append(self._paired_load(url, conns, p["load_s"]))
-            f8, w8, f1, w1, h1 = (runs[k][-1] for k in ("floor8", "warm8", "floor1", "warm1", "hop1"))
+            f8, w8, e8, f1, w1, e1, h1 = (runs[k][-1] for k, _, _ in order)
             ratios.append(w8["rps"] / f8["rps"] if f8["rps"] else 0.0)
             extras.append(w1["p50_ms"] - f1["p50_ms"])
             hops.append(h1["p50_ms"] - f1["p50_ms"])
-            log(f"round {i + 1}/{p['rounds']}: -c8 floor {f8['rps']:.0f} warm {w8['rps']:.0f} req/s "
-                f"(= {ratios[-1]:.2f}); -c1 p50 floor {f1['p50_ms']:.3f} warm {w1['p50_ms']:.3f} ms "
-                f"(+{extras[-1]:.3f}) health {h1['p50_ms']:.3f} ms (+{hops[-1]:.3f}); gateway CPU/request "
-                f"floor {f8['gateway_cpu_us_per_request']} warm {w8['gateway_cpu_us_per_request']} us")
+            echo_ratios.append(w8["rps"] / e8["rps"] if e8["rps"] else 0.0)
+            echo_extras.append(w1["p50_ms"] - e1["p50_ms"])
+            echo_hops.append(e1["p50_ms"] - f1["p50_ms"])
+            log(f"round {i + 1}/{p['rounds']}: -c8 floor {f8['rps']:.0f} warm {w8['rps']:.0f} echo {e8['rps']:.0f} "
+                f"req/s (warm = {ratios[-1]:.2f} x floor, {echo_ratios[-1]:.2f} x echo); -c1 p50 floor "
+                f"{f1['p50_ms']:.3f} warm {w1['p50_ms']:.3f} echo {e1['p50_ms']:.3f} ms (warm = floor "
+                f"+{extras[-1]:.3f}, echo {echo_extras[-1]:+.3f}) health {h1['p50_ms']:.3f} ms (+{hops[-1]:.3f}); "
+                f"gateway CPU/request floor {f8['gateway_cpu_us_per_request']} warm "
+                f"{w8['gateway_cpu_us_per_request']} echo {e8['gateway_cpu_us_per_request']} us")
         if self.args.profile:
             self.profile(warm_url)
 
@@ -295,6 +314,28 @@ class Bench:
                  f"p50 {m['warm1']['p50_ms']:.3f} ms; paired median floor + {extra:.3f} ms",
                  f"≤ floor p50 + {TARGETS['warm_p50_extra_ms']} ms",
                  extra <= TARGETS["warm_p50_extra_ms"] and m["warm1"]["errors"] == 0)
+        echo_ratio, echo_extra = statistics.median(echo_ratios), statistics.median(echo_extras)
+        echo_hop = statistics.median(echo_hops)
+        self.add("echo8", "echo route (the pure hop), 8 connections",
+                 f"{gen} -c8 GET /api/v1/x-sovd-debug/echo: one round trip through the same HTTP stack and "
+                 "IPC client to a process that answers at once; paired with the warm sample",
+                 {**m["echo8"], "warm_ratio_to_echo": round(echo_ratio, 3),
+                  "paired_warm_ratios": [round(x, 3) for x in echo_ratios]},
+                 f"{m['echo8']['rps']:.0f} req/s, gateway CPU {m['echo8']['gateway_cpu_us_per_request']:.0f} "
+                 f"us/req; warm sample = {echo_ratio:.2f} × echo (paired median)",
+                 f"warm ≥ {TARGETS['warm_echo_rps_ratio']} × echo",
+                 echo_ratio >= TARGETS["warm_echo_rps_ratio"] and m["echo8"]["errors"] == 0
+                 and m["warm8"]["errors"] == 0)
+        self.add("echo1", "echo route (the pure hop), 1 connection",
+                 f"{gen} -c1 GET /api/v1/x-sovd-debug/echo, paired with the warm sample and the floor",
+                 {**m["echo1"], "warm_extra_over_echo_ms": round(echo_extra, 3),
+                  "paired_warm_extras_ms": [round(x, 3) for x in echo_extras],
+                  "extra_over_floor_ms": round(echo_hop, 3)},
+                 f"p50 {m['echo1']['p50_ms']:.3f} ms = floor + {echo_hop:.3f} ms; warm sample = echo "
+                 f"{echo_extra:+.3f} ms (paired medians)",
+                 f"warm p50 ≤ echo p50 + {TARGETS['warm_echo_p50_extra_ms']} ms",
+                 echo_extra <= TARGETS["warm_echo_p50_extra_ms"] and m["echo1"]["errors"] == 0
+                 and m["warm1"]["errors"] == 0)
         inside = self.call("stats")["details"]["commands"]["sample"]
         n_inside = inside["count"] - inside_before["count"]
         us_inside = (inside["time_us"] - inside_before["time_us"]) / n_inside if n_inside else 0.0
@@ -500,7 +541,7 @@ def ros_helper_demo() -> Proc:
 
 # ---------------------------------------------------------------------------- output
 
-ORDER = ("floor8", "floor1", "warm8", "warm1", "hop1", "inside", "old", "cold", "image", "image_b64", "idle", "memory")
+ORDER = ("floor8", "floor1", "warm8", "warm1", "echo8", "echo1", "hop1", "inside", "old", "cold", "image", "image_b64", "idle", "memory")
 
 
 def ordered(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -522,15 +563,16 @@ def table(rows: list[dict[str, Any]]) -> str:
 def settings() -> dict[str, Any]:
     from app import config
     cfg = config.load(None, environ={})
-    info = {"workers": cfg.workers, "threads": cfg.threads, "sample_timeout": cfg.sample_timeout,
+    info = {"workers": cfg.workers, "worker_connections": cfg.worker_connections,
+            "sample_timeout": cfg.sample_timeout,
             "cold_wait_cap": cfg.cold_wait_cap, "max_pool_size": cfg.max_pool_size,
             "log_level": "warning (no access log)"}
     try:
         out = subprocess.run([sys.executable, "-c", "import app.gunicorn_conf as g; "
-                              "print(g.worker_class, g.workers, g.threads)"],
+                              "print(g.worker_class, g.workers, g.worker_connections)"],
                              capture_output=True, text=True, timeout=30, env={**os.environ, "SOVD_LOG_LEVEL": "warning"})
-        cls, workers, threads = out.stdout.split()
-        info.update(worker_class=cls, workers=int(workers), threads=int(threads))
+        cls, workers, conns = out.stdout.split()
+        info.update(worker_class=cls, workers=int(workers), worker_connections=int(conns))
     except (ValueError, OSError, subprocess.SubprocessError):
         pass
     return info
@@ -544,10 +586,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--python-load", action="store_true", help="use the Python load generator, not wrk")
     parser.add_argument("--profile", action="store_true", help="also record py-spy profiles under load")
     parser.add_argument("--gateway-args", default="", metavar="ARGS",
-                        help="extra sovd-gateway flags, e.g. '--workers 3 --threads 4' (recorded in the JSON)")
+                        help="extra sovd-gateway flags, e.g. '--workers 3' (recorded in the JSON)")
     parser.add_argument("--rounds", type=int, help="floor/warm rounds (default 3, quick 1)")
-    parser.add_argument("--only", metavar="CASES", help="comma-separated subset of: warm (floor and warm "
-                        "sample), old, memory, image, cold, idle (for development; the table is partial)")
+    parser.add_argument("--only", metavar="CASES", help="comma-separated subset of: warm (floor, warm "
+                        "sample and echo route), old, memory, image, cold, idle (for development; the table is "
+                        "partial)")
     args = parser.parse_args(argv)
 
     bench = Bench(args)
@@ -588,7 +631,7 @@ def main(argv: list[str] | None = None) -> int:
           + (f" ({result['load_generator_note']})" if result["load_generator_note"] else ""))
     g = result["gateway"]
     print(f"gateway: gunicorn {g.get('worker_class', '?')} × {g.get('workers')} workers × "
-          f"{g.get('threads')} threads, {g['log_level']}")
+          f"{g.get('worker_connections')} connections, {g['log_level']}")
     print()
     print(table(ordered(bench.rows)))
     print()

@@ -7,7 +7,7 @@ them made by another pid (it was forked) makes its own and never touches the
 parent's.
 
 Channels.  A channel is one DEALER socket connected to an endpoint, a monitor
-of that connection's disconnections, and a poller over both.  A call borrows
+of that connection's disconnections, and how to wait for both.  A call borrows
 a channel from its endpoint's pool for the duration of one request and its
 reply, then gives it back.  A pool holds at most ``pool_size`` channels, made
 on demand and reused most recently returned first, so a process with many
@@ -15,12 +15,15 @@ concurrent callers (an HTTP worker holds up to ``worker_connections``
 greenlets) holds a bounded number of sockets, and a caller beyond them waits
 for a free channel within its own deadline.  Pools are kept per endpoint.
 
-Green or plain.  In a process that gevent has patched (an HTTP worker; see
-``app/http_worker.py``) the context and the sockets are ``zmq.green``'s, so a
-call suspends only its own greenlet; the pool's semaphore is then gevent's
-too (``threading`` is patched).  Everywhere else (the supervisor, the probe,
-the tests) they are plain pyzmq and threads.  This module never imports
-gevent: it only asks whether the process was patched.
+Green or plain.  The sockets are plain pyzmq everywhere; what differs is how
+a call waits for them.  In a process that gevent has patched (an HTTP
+worker; see ``app/http_worker.py``) a call waits on the event loop
+(``ipc/greenwaits.py``) for its socket and for a free channel, so it
+suspends only its own greenlet.  Everywhere else (the supervisor, the probe,
+the tests) it waits in ``zmq_poll`` and the pool is shared by threads.  This
+module does not import gevent: it asks whether the process was patched.
+(``zmq.green`` does the same job; ``ipc/greenwaits.py`` says why it is not
+used.)
 
 Every call has a deadline.  DEALER sockets do not get stuck after a timeout
 the way REQ sockets do; a late reply is recognised by its id and dropped by
@@ -31,6 +34,7 @@ waits (the ROS worker died with the request) ends the call at once with
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import os
 import sys
@@ -49,6 +53,7 @@ CONNECT_WAIT = 0.25
 # flight at the same moment are bounded by it; the ROS worker answers them one at a time anyway,
 # and a cold read that waits holds its channel (at most ``cold_wait_cap`` such reads).
 POOL_SIZE = 32
+_EVENTS, _POLLIN, _POLLOUT = int(zmq.EVENTS), int(zmq.POLLIN), int(zmq.POLLOUT)  # plain ints: no enum cost
 
 
 class _MalformedReply(IpcError):
@@ -61,12 +66,32 @@ def green() -> bool:
     return monkey is not None and monkey.is_module_patched("socket")
 
 
+class _PollWait:
+    """Waits in ``zmq_poll`` (a process without gevent): the :class:`~ipc.greenwaits.LoopWait` API."""
+
+    __slots__ = ("_pollers",)
+
+    def __init__(self):
+        self._pollers: dict[tuple, zmq.Poller] = {}
+
+    def wait(self, wanted, timeout: float) -> list[zmq.Socket]:
+        poller = self._pollers.get(wanted)
+        if poller is None:
+            poller = self._pollers[wanted] = zmq.Poller()
+            for sock, flag in wanted:
+                poller.register(sock, flag)
+        return [sock for sock, _ in poller.poll(max(0, int(timeout * 1000)))]
+
+    def close(self) -> None:
+        pass
+
+
 class _Channel:
-    """One DEALER socket, a monitor of its disconnections, and a poller over both."""
+    """One DEALER socket, a monitor of its disconnections, and how to wait for them."""
 
-    __slots__ = ("sock", "mon", "poller")
+    __slots__ = ("sock", "mon", "waits", "replies")
 
-    def __init__(self, zmq_mod, ctx: zmq.Context, endpoint: str):
+    def __init__(self, ctx: zmq.Context, endpoint: str, green_waits: bool):
         sock = ctx.socket(zmq.DEALER)
         sock.setsockopt(zmq.LINGER, 0)
         sock.setsockopt(zmq.IMMEDIATE, 1)       # no queueing while the worker is down
@@ -78,27 +103,42 @@ class _Channel:
         self.mon = sock.get_monitor_socket(zmq.EVENT_DISCONNECTED)
         sock.connect(endpoint)
         self.sock = sock
-        self.poller = zmq_mod.Poller()
-        self.poller.register(sock, zmq.POLLIN)
-        self.poller.register(self.mon, zmq.POLLIN)
+        self.replies = ((sock, _POLLIN), (self.mon, _POLLIN))  # a reply, or a disconnection
+        if green_waits:
+            from .greenwaits import LoopWait
+
+            self.waits = LoopWait(sock, self.mon)
+        else:
+            self.waits = _PollWait()
 
     def forget_disconnects(self) -> None:
         """Drop disconnection events of earlier connections (a restarted worker)."""
-        while self.mon.getsockopt(zmq.EVENTS) & zmq.POLLIN:
+        while self.mon.getsockopt(_EVENTS) & _POLLIN:
             self.mon.recv_multipart(zmq.NOBLOCK)
 
     def close(self) -> None:
+        self.waits.close()
         self.mon.close(linger=0)
         self.sock.close(linger=0)
 
 
 class _ChannelPool:
-    """At most ``size`` channels to one endpoint; each is used by one caller at a time."""
+    """At most ``size`` channels to one endpoint; each is used by one caller at a time.
 
-    def __init__(self, zmq_mod, ctx: zmq.Context, endpoint: str, size: int):
-        self._zmq, self._ctx, self.endpoint = zmq_mod, ctx, endpoint
-        self._slots = threading.BoundedSemaphore(size)
-        self._lock = threading.Lock()
+    With greenlets (one thread) the idle list needs no lock: nothing between
+    looking at it and changing it can switch to another greenlet.
+    """
+
+    def __init__(self, ctx: zmq.Context, endpoint: str, size: int, green_waits: bool):
+        self._ctx, self.endpoint, self._green = ctx, endpoint, green_waits
+        if green_waits:
+            from .greenwaits import semaphore
+
+            self._slots = semaphore(size)
+            self._lock = contextlib.nullcontext()
+        else:
+            self._slots = threading.BoundedSemaphore(size)
+            self._lock = threading.Lock()
         self._idle: list[_Channel] = []
         self._open: list[_Channel] = []
 
@@ -110,7 +150,7 @@ class _ChannelPool:
             with self._lock:
                 if self._idle:
                     return self._idle.pop()
-            channel = _Channel(self._zmq, self._ctx, self.endpoint)
+            channel = _Channel(self._ctx, self.endpoint, self._green)
             with self._lock:
                 self._open.append(channel)
             return channel
@@ -146,7 +186,7 @@ class RosWorkerClient:
         self.pool_size = pool_size
         self._pid: int | None = None
         self._ctx: zmq.Context | None = None
-        self._zmq = zmq
+        self._green = False
         self._pools: dict[str, _ChannelPool] = {}
         self._lock = threading.Lock()
         self._ids = itertools.count(1)
@@ -172,8 +212,8 @@ class RosWorkerClient:
             with self._lock:
                 if self._pid != pid:
                     # Forked (or first use): never touch the parent's context or sockets.
-                    self._zmq = _green_zmq() if green() else zmq
-                    self._ctx = self._zmq.Context()
+                    self._green = green()
+                    self._ctx = zmq.Context()
                     self._pools = {}
                     self._pid = pid
         pool = self._pools.get(endpoint)
@@ -181,8 +221,8 @@ class RosWorkerClient:
             with self._lock:
                 pool = self._pools.get(endpoint)
                 if pool is None:
-                    pool = self._pools[endpoint] = _ChannelPool(self._zmq, self._ctx, endpoint,
-                                                                self.pool_size)
+                    pool = self._pools[endpoint] = _ChannelPool(self._ctx, endpoint, self.pool_size,
+                                                                self._green)
         return pool
 
     def call(self, cmd: str, args: dict[str, Any] | None = None, timeout: float = 2.0,
@@ -228,7 +268,7 @@ class RosWorkerClient:
             sock.send(frame, zmq.NOBLOCK)
         except zmq.Again:
             wait = min(connect_wait, max(0.0, deadline - time.monotonic()))
-            if not sock.poll(int(wait * 1000), zmq.POLLOUT):
+            if not channel.waits.wait(((sock, _POLLOUT),), wait):
                 raise IpcError("unavailable", "The ROS worker is not running; retry shortly") from None
             try:
                 sock.send(frame, zmq.NOBLOCK)
@@ -236,20 +276,22 @@ class RosWorkerClient:
                 raise IpcError("unavailable", "The ROS worker is not running; retry shortly") from None
         while True:
             remaining = deadline - time.monotonic()
-            events = channel.poller.poll(max(1, int(remaining * 1000))) if remaining > 0 else ()
-            if not events:
+            ready = channel.waits.wait(channel.replies, remaining) if remaining > 0 else ()
+            if not ready:
                 raise IpcError(
                     "deadline-exceeded",
                     f"The ROS worker did not answer {cmd!r} within {timeout:g} s",
                     {"command": cmd, "timeout_s": timeout},
                 )
-            if not any(s is sock for s, _ in events):
+            if sock not in ready:
                 # The connection dropped while we waited: the worker died with our request.
                 channel.forget_disconnects()
                 raise IpcError("unavailable", f"The ROS worker went away while handling {cmd!r}; "
                                               "retry shortly", {"command": cmd})
             try:
-                reply = protocol.unpack(sock.recv(zmq.NOBLOCK), protocol.MAX_REPLY_FRAME)
+                # Not copied out of libzmq's message: unpacking copies what it keeps (a sample's
+                # JSON), and a large sample (an image) is then one transient buffer, not two.
+                reply = protocol.unpack(sock.recv(zmq.NOBLOCK, copy=False).buffer, protocol.MAX_REPLY_FRAME)
             except zmq.Again:
                 continue
             except ValueError:
@@ -277,8 +319,3 @@ class RosWorkerClient:
             pool.close()
         ctx.term()
 
-
-def _green_zmq():
-    import zmq.green
-
-    return zmq.green

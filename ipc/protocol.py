@@ -53,7 +53,7 @@ def pack(message: dict[str, Any]) -> bytes:
     return msgpack.packb(message, use_bin_type=True)
 
 
-def unpack(frame: bytes, max_size: int = MAX_FRAME) -> Any:
+def unpack(frame: bytes | memoryview, max_size: int = MAX_FRAME) -> Any:
     """Decode one frame; raises ValueError on anything that is not a msgpack map."""
     if len(frame) > max_size:
         raise ValueError(f"frame of {len(frame)} bytes exceeds {max_size}")

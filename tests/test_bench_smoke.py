@@ -16,7 +16,7 @@ import pytest
 
 from tests.support.procs import REPO
 
-CASES = {"floor8", "floor1", "warm8", "warm1", "hop1", "inside", "old", "cold", "image", "image_b64", "idle", "memory"}
+CASES = {"floor8", "floor1", "warm8", "warm1", "echo8", "echo1", "hop1", "inside", "old", "cold", "image", "image_b64", "idle", "memory"}
 
 
 @pytest.mark.timeout(120)
@@ -42,6 +42,8 @@ def test_quick_bench_runs_every_case_and_writes_json(tmp_path):
     assert rows["warm8"]["values"]["rps"] > 0
     assert rows["floor1"]["values"]["p50_ms"] > 0
     assert rows["hop1"]["values"]["p50_ms"] > 0
+    assert rows["echo8"]["values"]["rps"] > 0 and rows["echo8"]["values"]["errors"] == 0  # the echo route answers
+    assert rows["echo1"]["values"]["p50_ms"] > 0
     assert rows["inside"]["values"]["samples"] > 0 and rows["inside"]["values"]["us_per_sample"] > 0
     cold = rows["cold"]["values"]
     assert len(cold["samples_ms"]) + cold["misses"] == 3  # every fresh topic was read once

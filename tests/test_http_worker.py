@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import signal
 import socket
+import sys
 import threading
 import time
 
@@ -20,7 +21,7 @@ import pytest
 import requests
 
 from tests.support.gateway import Gateway
-from tests.support.procs import poll_until
+from tests.support.procs import Proc, free_port, poll_until
 
 HEADER_TIMEOUT = 2.0
 BODY_TIMEOUT = 2.0
@@ -51,25 +52,41 @@ def connect(gw) -> socket.socket:
 
 def read_response(sock: socket.socket) -> tuple[int, bytes]:
     """One HTTP/1.1 response with a Content-Length: (status, body)."""
-    status, _, body = read_response_with_head(sock)
+    status, _, body = Responses(sock).next()
     return status, body
 
 
 def read_response_with_head(sock: socket.socket) -> tuple[int, dict[str, str], bytes]:
-    data = b""
-    while b"\r\n\r\n" not in data:
-        chunk = sock.recv(65536)
-        assert chunk, f"connection closed before a response head: {data!r}"
-        data += chunk
-    head, _, body = data.partition(b"\r\n\r\n")
-    lines = head.decode("latin-1").split("\r\n")
-    headers = {k.strip().lower(): v.strip() for k, _, v in (line.partition(":") for line in lines[1:])}
-    length = int(headers["content-length"])
-    while len(body) < length:
-        chunk = sock.recv(65536)
-        assert chunk, "connection closed inside a response body"
-        body += chunk
-    return int(lines[0].split()[1]), headers, body[:length]
+    return Responses(sock).next()
+
+
+class Responses:
+    """HTTP/1.1 responses with a Content-Length read one after the other from a socket.
+
+    Keeps what it read past a response: pipelined answers may arrive in one segment.
+    """
+
+    def __init__(self, sock: socket.socket):
+        self.sock = sock
+        self.data = b""
+
+    def _more(self, what: str) -> None:
+        chunk = self.sock.recv(65536)
+        assert chunk, f"connection closed {what}: {self.data!r}"
+        self.data += chunk
+
+    def next(self) -> tuple[int, dict[str, str], bytes]:
+        while b"\r\n\r\n" not in self.data:
+            self._more("before a response head")
+        head, _, rest = self.data.partition(b"\r\n\r\n")
+        lines = head.decode("latin-1").split("\r\n")
+        headers = {k.strip().lower(): v.strip() for k, _, v in (line.partition(":") for line in lines[1:])}
+        length = int(headers["content-length"])
+        self.data = rest
+        while len(self.data) < length:
+            self._more("inside a response body")
+        body, self.data = self.data[:length], self.data[length:]
+        return int(lines[0].split()[1]), headers, body
 
 
 def health_is_served(gw) -> None:
@@ -284,8 +301,38 @@ def test_a_body_the_app_does_not_read_is_drained_or_the_connection_dropped(gw):
     with connect(gw) as s:  # the body does come: the connection is reused
         s.sendall(put_head("/api/v1/health", 1000) + b" " * 1000 + HEALTH + b"\r\n")
         s.settimeout(HANG)
-        assert read_response(s)[0] == 405
-        assert read_response(s)[0] == 200
+        answers = Responses(s)
+        assert answers.next()[0] == 405
+        assert answers.next()[0] == 200
+
+
+def test_a_kept_alive_connection_may_idle_for_keepalive_not_header_timeout(tmp_path):
+    """Between requests the bound is gunicorn's keepalive (nginx reuses such connections), then it is dropped.
+
+    gunicorn alone with the gateway's config and a short keepalive (3 s) next to a 1 s header timeout.
+    """
+    port = free_port()
+    env = {"SOVD_BIND": f"127.0.0.1:{port}", "SOVD_RUNTIME_DIR": str(tmp_path), "SOVD_WORKERS": "1",
+           "SOVD_HEADER_TIMEOUT": "1", "SOVD_LOG_LEVEL": "warning"}
+    gunicorn = Proc([sys.executable, "-m", "gunicorn", "-c", "python:app.gunicorn_conf", "--keep-alive", "3",
+                     "app.wsgi:create_app()"], env=env, name="gunicorn")
+    version = b"GET /api/v1/version-info HTTP/1.1\r\nHost: x\r\n\r\n"
+    try:
+        poll_until(lambda: requests.get(f"http://127.0.0.1:{port}/api/v1/version-info", timeout=2).ok, 30,
+                   message="gunicorn up")
+        with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
+            s.settimeout(HANG)
+            s.sendall(version)
+            assert read_response(s)[0] == 200
+            # Idle past the header timeout: not dropped (a server closing early would show here) ...
+            assert not closed_by_server(s, 1.5)
+            s.sendall(version)
+            s.settimeout(HANG)
+            assert read_response(s)[0] == 200
+            # ... but dropped once the keepalive has passed.
+            assert closed_by_server(s, 3 + HANG)
+    finally:
+        gunicorn.stop()
 
 
 # --------------------------------------------------------------------------------- stopping
@@ -316,6 +363,36 @@ def test_a_stream_ends_with_a_last_frame_when_its_worker_is_told_to_stop():
         poll_until(lambda: gw.get("/health").status_code == 200, 30, message="health after the restart")
     finally:
         gw.stop()
+
+
+def test_max_requests_ends_streams_as_a_stop_does(tmp_path):
+    """gunicorn's max_requests (reached by other requests) is a graceful stop: the stream ends too.
+
+    gunicorn alone with the gateway's config (no ROS worker is needed for these routes).
+    """
+    port = free_port()
+    env = {"SOVD_BIND": f"127.0.0.1:{port}", "SOVD_RUNTIME_DIR": str(tmp_path), "SOVD_WORKERS": "1",
+           "SOVD_DEBUG_COMMANDS": "1", "SOVD_SHUTDOWN_GRACE": "60", "SOVD_LOG_LEVEL": "info"}
+    gunicorn = Proc([sys.executable, "-m", "gunicorn", "-c", "python:app.gunicorn_conf", "--max-requests", "5",
+                     "app.wsgi:create_app()"], env=env, name="gunicorn")
+    base = f"http://127.0.0.1:{port}/api/v1"
+    try:
+        poll_until(lambda: requests.get(base + "/x-sovd-debug/worker", timeout=2).ok, 30, message="gunicorn up")
+        first = requests.get(base + "/x-sovd-debug/worker", timeout=5).json()["pid"]  # requests 1 and 2
+        frames: list[str] = []
+        reader = threading.Thread(target=stream_until_closed,
+                                  args=(base + "/x-sovd-debug/stream?interval=0.05", frames, 30))
+        reader.start()  # request 3
+        poll_until(lambda: frames.count("tick") >= 2, 10, message="the stream is flowing")
+        for _ in range(2):  # requests 4 and 5: the worker is done after this one
+            assert requests.get(base + "/version-info", timeout=5).ok
+        reader.join(15)  # far below the 60 s grace
+        assert not reader.is_alive(), "the stream did not end when max_requests was reached"
+        assert frames[-1] == "stopping", frames[-5:]
+        poll_until(lambda: requests.get(base + "/x-sovd-debug/worker", timeout=2).json()["pid"] != first, 30,
+                   message="a new worker after max_requests")
+    finally:
+        gunicorn.stop()
 
 
 def test_sigterm_to_the_gateway_ends_streams_and_idle_connections_without_waiting_for_the_grace():
