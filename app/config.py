@@ -121,6 +121,8 @@ SETTINGS: tuple[Setting, ...] = (
             1, 100000),
     Setting("max_stream_duration", int, 3600, "longest duration in seconds a cyclic subscription may ask",
             1, 86400),
+    Setting("stream_send_timeout", float, 30.0, "seconds an SSE client may take to take one frame before "
+            "it is disconnected", 1, 600),
     Setting("gateway_name", str, "sovd_gateway", "ROS node name prefix; the worker's node is <name>_sub"),
     # --- HTTP side ---
     Setting("bind", str, "127.0.0.1:8080", "HOST:PORT the HTTP server listens on"),

@@ -15,7 +15,9 @@ no thread per stream.
   dropped first: latest-value semantics) drained by its response generator,
   which also sends a ``:`` keep-alive comment after ``KEEPALIVE`` seconds of
   silence and ends the stream at its expiry.  A client that stops reading
-  only ever holds a few frames; it never slows the others.
+  only ever holds a few frames; it never slows the others; and one that
+  takes more than ``stream_send_timeout`` seconds to take a frame is
+  disconnected (its connection is not held for ever).
 - The *ticker* greenlet stands in while the ROS worker is down: every stream
   gets an ``error`` frame per interval (the error a GET would answer), so the
   stream stays open and visibly degraded until data frames come back.  It
@@ -30,6 +32,7 @@ socket and its greenlets are made by :func:`get` in the worker process.
 from __future__ import annotations
 
 import collections
+import errno
 import logging
 import os
 import time
@@ -80,6 +83,13 @@ def error_frame(stream: Stream, exc: IpcError, stamp_ns: int | None = None) -> b
     return frame(time.time_ns() if stamp_ns is None else stamp_ns, error=orjson.dumps(body))
 
 
+class SendStalled(OSError):
+    """A frame could not be written within the send timeout: the client is not reading."""
+
+    def __init__(self, seconds: float):
+        super().__init__(errno.EPIPE, f"the client took no frame for {seconds:g} s (stream_send_timeout)")
+
+
 class Stream:
     """One open ``.../events`` response."""
 
@@ -119,15 +129,25 @@ class Stream:
         self.wake.set()
 
     def body(self) -> Iterator[bytes]:
-        """The response body; its ``finally`` gives the stream back (client gone, expiry, end)."""
+        """The response body; its ``finally`` gives the stream back (client gone, expiry, end).
+
+        The server writes what is yielded on this greenlet; a write that takes longer
+        than the send timeout raises :class:`SendStalled` there (gunicorn closes the
+        connection as it does for a client that went away).
+        """
         hub = self.hub
+        stalled = gevent.Timeout(hub.send_timeout, SendStalled(hub.send_timeout))
         try:
             quiet_since = time.monotonic()
             while True:
                 if self.frames:
                     chunk = self.frames.popleft()
                     hub.counters["frames_sent"] += 1
-                    yield chunk
+                    stalled.start()
+                    try:
+                        yield chunk
+                    finally:
+                        stalled.cancel()
                     quiet_since = time.monotonic()
                     continue
                 if self.ended:
@@ -136,7 +156,11 @@ class Stream:
                 if now >= self.expires:
                     return
                 if now - quiet_since >= KEEPALIVE:
-                    yield b": keep-alive\n\n"
+                    stalled.start()
+                    try:
+                        yield b": keep-alive\n\n"
+                    finally:
+                        stalled.cancel()
                     quiet_since = now
                     continue
                 self.wake.clear()
@@ -148,8 +172,10 @@ class Stream:
 
 class StreamHub:
     def __init__(self, runtime_dir: str, report: Callable[[dict[str, int]], None],
-                 lookup: Callable[[Stream], None], stopping: Callable[[], bool] = lambda: False):
+                 lookup: Callable[[Stream], None], stopping: Callable[[], bool] = lambda: False,
+                 send_timeout: float = 30.0):
         self.runtime_dir = runtime_dir
+        self.send_timeout = send_timeout
         self._report = report                  # sends counters to the ROS worker (may raise IpcError)
         self._lookup = lookup                  # asks the ROS worker for a stream's subscription (IpcError)
         self._stopping = stopping              # true once this HTTP worker is shutting down
@@ -376,15 +402,17 @@ EXTENSION = "sovd_streams"
 class _PerProcess:
     """The app's hub, made in the process that first opens a stream (never before the fork)."""
 
-    def __init__(self, runtime_dir: str, ros: rosclient.RosClient):
+    def __init__(self, runtime_dir: str, ros: rosclient.RosClient, send_timeout: float):
         self.runtime_dir = runtime_dir
         self.ros = ros
+        self.send_timeout = send_timeout
         self.hub: StreamHub | None = None
         self.pid: int | None = None
 
     def get(self) -> StreamHub:
         if self.pid != os.getpid():
-            self.hub = StreamHub(self.runtime_dir, self._report, self._lookup, _worker_stopping)
+            self.hub = StreamHub(self.runtime_dir, self._report, self._lookup, _worker_stopping,
+                                 self.send_timeout)
             self.hub.start()
             self.pid = os.getpid()
         return self.hub
@@ -410,7 +438,9 @@ def _worker_stopping() -> bool:
 
 
 def init_app(app: Flask) -> None:
-    app.extensions[EXTENSION] = _PerProcess(app.config["SOVD"].runtime_dir, app.extensions[rosclient.EXTENSION])
+    cfg = app.config["SOVD"]
+    app.extensions[EXTENSION] = _PerProcess(cfg.runtime_dir, app.extensions[rosclient.EXTENSION],
+                                            cfg.stream_send_timeout)
 
 
 def get() -> StreamHub:

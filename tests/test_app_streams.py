@@ -54,9 +54,12 @@ def robot():
     node.stop()
 
 
+SEND_TIMEOUT = 3  # --stream-send-timeout of the module's gateway: stalled readers are cut after it
+
+
 @pytest.fixture(scope="module")
 def gw(robot):
-    gateway = start_gateway()
+    gateway = start_gateway("--stream-send-timeout", str(SEND_TIMEOUT))
     yield gateway
     gateway.stop()
 
@@ -192,6 +195,10 @@ def test_a_slow_reader_neither_slows_the_others_nor_grows_memory(gw):
         assert rss_after - rss_before < 64 * 2**20, (rss_before, rss_after)
         poll_until(lambda: gw.get("/health").json()["x-medkit-streams"]["frames_dropped"] > dropped_before,
                    10, message="dropped frames counted")
+        # A reader that takes no frame for the send timeout is disconnected: its connection is not
+        # held for ever.  (Reading now, each finds the end of its stream after what was buffered.)
+        for s in stalled:
+            assert s.ended(timeout=SEND_TIMEOUT + 20), "a stalled reader was never disconnected"
     finally:
         for s in stalled:
             s.close()
