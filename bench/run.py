@@ -23,6 +23,8 @@ difference between figures of the same run.
 | image | 640×480 rgb8 at 10 Hz, 1 connection, integer arrays, then ``?bytes=base64`` |
 | idle cost | ROS worker CPU, 50 pooled topics at 100 Hz, no readers, next to ``tests/support/ddsfloor.py`` |
 | memory | ROS worker RSS before and with 256 pooled topics |
+| streams | 1,000 SSE streams on 10 topics at ``normal`` for 30 s (``bench/streams.py``), then 10 on the same topics |
+| stream image | a 640×480 rgb8 image at 5 Hz streamed at ``fast`` (``?bytes=base64``): publish stamp to client |
 
 Floor, warm sample and echo route are measured in alternating rounds (floor
 -c8, sample -c8, echo -c8, floor -c1, sample -c1, echo -c1, health -c1, six
@@ -66,6 +68,7 @@ from tests.support.gateway import Gateway
 from tests.support.procs import Proc, poll_until, private_ros_domain
 
 from . import load as loadgen
+from . import streams
 from .procs import cpu_seconds, measure_cpu, robot, ros_helper
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -74,9 +77,11 @@ WARM_APP = "temp_sensor"
 IMAGE_TOPIC = "/bench/camera/image"
 
 FULL = {"rounds": 6, "load_s": 2.5, "warmup_s": 2.0, "image_s": 8.0, "old_n": 30, "cold_n": 20,
-        "idle_topics": 50, "idle_rate": 100, "idle_s": 10.0, "mem_topics": 256}
+        "idle_topics": 50, "idle_rate": 100, "idle_s": 10.0, "mem_topics": 256,
+        "streams": 1000, "streams_s": 30.0, "stream_image_s": 20.0}
 QUICK = {"rounds": 1, "load_s": 1.0, "warmup_s": 0.0, "image_s": 1.0, "old_n": 3, "cold_n": 3,
-         "idle_topics": 50, "idle_rate": 100, "idle_s": 2.0, "mem_topics": 16}
+         "idle_topics": 50, "idle_rate": 100, "idle_s": 2.0, "mem_topics": 16,
+         "streams": 40, "streams_s": 3.0, "stream_image_s": 3.0}
 
 TARGETS = {
     "warm_rps_ratio": 0.7,        # warm sample 8 conn ≥ 0.7 × floor
@@ -210,7 +215,7 @@ class Bench:
         # memory before image/cold/idle: its "before" RSS is not their high-water mark
         cases = {"warm": self.case_floor_and_warm, "old": self.case_old_design,
                  "memory": self.case_memory, "image": self.case_image, "cold": self.case_cold,
-                 "idle": self.case_idle}
+                 "idle": self.case_idle, "streams": self.case_streams, "stream_image": self.case_stream_image}
         only = set(self.args.only.split(",")) if self.args.only else set(cases)
         if "old" in only:
             only.add("warm")  # the old design is compared with the warm sample
@@ -406,6 +411,42 @@ class Bench:
         self.stop_proc(cam)
         self.evict_all()
 
+    def case_streams(self) -> None:
+        n, seconds = self.p["streams"], self.p["streams_s"]
+        got = streams.case_streams(self.gw, n, seconds)
+        self.extra["streams"] = got
+        many, few, t = got["many"], got["few"], streams.TARGETS
+        ratio = many["delivered_ratio"]
+        passed = (ratio >= t["streams_delivered"] and many["lateness_p99_ms"] <= t["streams_lateness_p99_ms"]
+                  and many["health_p99_ms"] <= t["streams_health_p99_ms"]
+                  and many["warm_p99_ms"] <= t["streams_warm_p99_ms"] and many["failed"] == 0)
+        self.add("streams", f"{n} SSE streams, 10 topics at normal",
+                 f"{n // 10} streams per topic, {many['delivered'] / seconds:,.0f} frames/s for {seconds:g} s, "
+                 "2 reader processes; /health and a warm GET every 0.1 s meanwhile",
+                 many, f"{ratio:.2%} of scheduled frames delivered (min {many['per_stream_min']} per stream), "
+                 f"lateness p50 {many['lateness_p50_ms']:.0f} / p99 {many['lateness_p99_ms']:.0f} ms, "
+                 f"/health p99 {many['health_p99_ms']:.1f} ms, warm GET p99 {many['warm_p99_ms']:.1f} ms; "
+                 f"CPU: ROS worker {many['rosworker_cpu']:.0%}, HTTP workers {many['http_cpu']:.0%} of a core; "
+                 f"RSS: HTTP workers {many['rss_http_mb']:.0f} MiB, ROS worker {many['rss_rosworker_mb']:.0f} MiB",
+                 f"≥ {t['streams_delivered']:.0%}, p99 ≤ {t['streams_lateness_p99_ms']:.0f} ms, "
+                 f"/health and warm p99 ≤ {t['streams_health_p99_ms']:.0f} ms", passed)
+        self.add("fanout", "stream fan-out cost", f"ROS worker CPU with {n} streams vs 10 streams on the same "
+                 "10 topics, same window", {"many": many["rosworker_cpu"], "few": few["rosworker_cpu"]},
+                 f"{many['rosworker_cpu']:.1%} vs {few['rosworker_cpu']:.1%} of a core = "
+                 f"{got['fanout_ratio']:.2f} ×; HTTP side {got['http_cpu_us_per_frame']:.0f} µs CPU per "
+                 "delivered frame", f"≤ {t['fanout_ratio']:g} ×", got["fanout_ratio"] <= t["fanout_ratio"])
+
+    def case_stream_image(self) -> None:
+        got = streams.case_image(self.gw, self.p["stream_image_s"])
+        self.extra["stream_image"] = got
+        target = streams.TARGETS["image_latency_p50_ms"]
+        self.add("stream_image", "640×480 rgb8 at 5 Hz, streamed at fast",
+                 "?bytes=base64, one SSE client; publish stamp (header.stamp) to the frame's last byte",
+                 got, f"p50 {got['stamp_latency_p50_ms']:.1f} ms over {got['stamp_latency_n']} images "
+                 f"(frames: tick to arrival p50 {got['lateness_p50_ms']:.1f} ms; half a 50 ms tick is "
+                 "waited on average by design)", f"p50 ≤ {target:.0f} ms (rosbridge: 146 ms)",
+                 got["stamp_latency_p50_ms"] <= target)
+
     def case_cold(self) -> None:
         n = self.p["cold_n"]
         topics = [f"/bench/cold/t{i}" for i in range(n)]
@@ -541,7 +582,8 @@ def ros_helper_demo() -> Proc:
 
 # ---------------------------------------------------------------------------- output
 
-ORDER = ("floor8", "floor1", "warm8", "warm1", "echo8", "echo1", "hop1", "inside", "old", "cold", "image", "image_b64", "idle", "memory")
+ORDER = ("floor8", "floor1", "warm8", "warm1", "echo8", "echo1", "hop1", "inside", "old", "cold", "image",
+         "image_b64", "idle", "memory", "streams", "fanout", "stream_image")
 
 
 def ordered(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -589,7 +631,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="extra sovd-gateway flags, e.g. '--workers 3' (recorded in the JSON)")
     parser.add_argument("--rounds", type=int, help="floor/warm rounds (default 3, quick 1)")
     parser.add_argument("--only", metavar="CASES", help="comma-separated subset of: warm (floor, warm "
-                        "sample and echo route), old, memory, image, cold, idle (for development; the table is "
+                        "sample and echo route), old, memory, image, cold, idle, streams, stream_image (for "
+                        "development; the table is "
                         "partial)")
     args = parser.parse_args(argv)
 

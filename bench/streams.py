@@ -1,8 +1,6 @@
 """The streaming cases of ``make bench``: many SSE streams, their fan-out cost, an image stream.
 
-    python -m bench.streams [--quick] [--streams N]
-
-Each case starts its own publishers (``tests/support/benchpub.py``) beside the
+``bench/run.py`` runs them against its gateway (``--only streams,stream_image``).  Each case starts its own publishers (``tests/support/benchpub.py``) beside the
 gateway it is given, makes cyclic subscriptions through the HTTP API and reads
 the streams with ``tests/support/sseload.py`` in two client processes (one
 Python process alone could not read 5,000 frames/s and leave a core to the
@@ -17,7 +15,6 @@ gateway).  Every figure is a ratio or a difference within the run.
 
 from __future__ import annotations
 
-import argparse
 import json
 import statistics
 import sys
@@ -27,9 +24,10 @@ from typing import Any
 
 import requests
 
+from tests.support.gateway import Gateway
 from tests.support.procs import Proc
 
-from .procs import BenchGateway, cpu_seconds, robot
+from .procs import cpu_seconds, robot
 
 STREAM_TOPICS = 10
 STREAM_PREFIX = "/bench/stream/t"
@@ -47,14 +45,14 @@ TARGETS = {
 }
 
 
-def subscribe(gw: BenchGateway, app: str, topic: str, interval: str, duration: int, query: str = "") -> dict:
+def subscribe(gw: Gateway, app: str, topic: str, interval: str, duration: int, query: str = "") -> dict:
     r = requests.post(f"{gw.api}/apps/{app}/cyclic-subscriptions", timeout=10, json={
         "resource": f"/api/v1/apps/{app}/data{topic}{query}", "interval": interval, "duration": duration})
     r.raise_for_status()
     return r.json()
 
 
-def read_streams(gw: BenchGateway, paths: list[str], period: float, open_for: float, measure_from: float,
+def read_streams(gw: Gateway, paths: list[str], period: float, open_for: float, measure_from: float,
                  clients: int = 2, **extra: Any) -> dict[str, Any]:
     """Read ``paths`` with ``clients`` processes; their summaries merged."""
     procs = []
@@ -95,7 +93,7 @@ def _p99(values: list[float]) -> float:
     return sorted(values)[min(len(values) - 1, int(0.99 * (len(values) - 1)))] if values else float("nan")
 
 
-def case_streams(gw: BenchGateway, n: int, seconds: float, quick: bool) -> dict[str, Any]:
+def case_streams(gw: Gateway, n: int, seconds: float) -> dict[str, Any]:
     """N streams over 10 topics at normal, then 10 streams on the same topics (the fan-out reference)."""
     pub = robot(STREAM_APP, [{"prefix": STREAM_PREFIX, "count": STREAM_TOPICS, "rate": 10, "kind": "small"}])
     try:
@@ -144,18 +142,16 @@ def case_streams(gw: BenchGateway, n: int, seconds: float, quick: bool) -> dict[
         few = run(STREAM_TOPICS)
         for sub in subs:
             requests.delete(f"{gw.api}/apps/{STREAM_APP}/cyclic-subscriptions/{sub['id']}", timeout=10)
-        frames_per_s = many["delivered"] / max(1e-9, many.get("window_s", seconds)) if "window_s" in many \
-            else many["delivered"] / seconds
         return {"many": many, "few": few, "streams": n, "seconds": seconds,
                 "fanout_ratio": many["rosworker_cpu"] / few["rosworker_cpu"] if few["rosworker_cpu"] else
                 float("nan"),
                 "http_cpu_us_per_frame": many["http_cpu"] * seconds / max(1, many["delivered"]) * 1e6,
-                "frames_per_s": frames_per_s}
+                "frames_per_s": many["delivered"] / seconds}
     finally:
         pub.stop()
 
 
-def case_image(gw: BenchGateway, seconds: float) -> dict[str, Any]:
+def case_image(gw: Gateway, seconds: float) -> dict[str, Any]:
     pub = robot(IMAGE_APP, [{"topic": IMAGE_TOPIC, "rate": 5, "kind": "image"}])
     try:
         _wait_data(gw, IMAGE_APP, [IMAGE_TOPIC])
@@ -168,7 +164,7 @@ def case_image(gw: BenchGateway, seconds: float) -> dict[str, Any]:
         pub.stop()
 
 
-def _wait_data(gw: BenchGateway, app: str, topics: list[str], timeout: float = 60.0) -> None:
+def _wait_data(gw: Gateway, app: str, topics: list[str], timeout: float = 60.0) -> None:
     deadline = time.monotonic() + timeout
     for topic in topics:
         while True:
@@ -178,45 +174,3 @@ def _wait_data(gw: BenchGateway, app: str, topics: list[str], timeout: float = 6
             if time.monotonic() > deadline:
                 raise RuntimeError(f"no data on {topic} through {app}")
             time.sleep(0.2)
-
-
-def verdicts(streams: dict[str, Any], image: dict[str, Any]) -> dict[str, tuple[float, float, bool]]:
-    many = streams["many"]
-    rows = {
-        "streams_delivered": (many["delivered_ratio"], TARGETS["streams_delivered"], True),
-        "streams_lateness_p99_ms": (many["lateness_p99_ms"], TARGETS["streams_lateness_p99_ms"], False),
-        "streams_health_p99_ms": (many["health_p99_ms"], TARGETS["streams_health_p99_ms"], False),
-        "streams_warm_p99_ms": (many["warm_p99_ms"], TARGETS["streams_warm_p99_ms"], False),
-        "fanout_ratio": (streams["fanout_ratio"], TARGETS["fanout_ratio"], False),
-        "image_latency_p50_ms": (image["stamp_latency_p50_ms"], TARGETS["image_latency_p50_ms"], False),
-    }
-    return {k: (v, t, v >= t if higher else v <= t) for k, (v, t, higher) in rows.items()}
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m bench.streams")
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--streams", type=int, default=1000)
-    parser.add_argument("--seconds", type=float, default=30.0)
-    parser.add_argument("--log-dir", default="/tmp/sovd-bench-streams")
-    args = parser.parse_args(argv)
-    from .procs import claim_domain
-
-    claim_domain()
-    import os
-
-    os.makedirs(args.log_dir, exist_ok=True)
-    n, seconds = (50, 4.0) if args.quick else (args.streams, args.seconds)
-    gw = BenchGateway("--max-subscriptions", str(max(1000, n)), log_dir=args.log_dir)
-    try:
-        streams = case_streams(gw, n, seconds, args.quick)
-        image = case_image(gw, 4.0 if args.quick else 20.0)
-    finally:
-        gw.stop()
-    result = {"streams": streams, "image": image, "verdicts": verdicts(streams, image)}
-    print(json.dumps(result, indent=2, default=str))
-    return 0 if args.quick or all(ok for _, _, ok in result["verdicts"].values()) else 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())
