@@ -38,8 +38,8 @@ LOCK_POLL = 0.05
 STATE_SAVE_EVERY = 0.25  # seconds; only written when it changed
 REWARM_FOR = 30.0    # seconds to keep trying to re-subscribe topics pooled before a restart
 REWARM_RETRY = 0.25
-# Discovery settles before the socket is bound: at least SETTLE_MIN, until the graph
-# has not changed for SETTLE_QUIET, at most SETTLE_MAX seconds.
+# Discovery settles before the socket is bound: at least SETTLE_MIN after a restart, until
+# the graph has not changed for SETTLE_QUIET, at most SETTLE_MAX seconds.
 SETTLE_MIN, SETTLE_QUIET, SETTLE_MAX = 1.0, 0.5, 5.0
 
 log = logging.getLogger("sovd.rosworker")
@@ -253,11 +253,14 @@ class Worker:
         ``unavailable`` with Retry-After instead, which is the truth.  Settled
         means: the nodes the previous worker knew (``expected``) are back, or
         SETTLE_MAX passed (some of them really left); and the graph has not
-        changed for SETTLE_QUIET.
+        changed for SETTLE_QUIET.  At the first boot nobody was told anything
+        before, so only the quiet period counts (gunicorn, started next, takes
+        longer than SETTLE_MIN to answer anyway).
         """
         from .graph import node_names
 
         own = (node.get_name(), node.get_namespace())
+        least = SETTLE_MIN if self.restart else 0.0
         started = time.monotonic()
         last, quiet_since = None, started
         while self._signal is None:
@@ -268,16 +271,16 @@ class Worker:
                 last, quiet_since = seen, now
             elapsed = now - started
             found = expected.issubset(node_names(nodes, own))
-            if elapsed >= SETTLE_MAX or (found and elapsed >= SETTLE_MIN and now - quiet_since >= SETTLE_QUIET):
+            if elapsed >= SETTLE_MAX or (found and elapsed >= least and now - quiet_since >= SETTLE_QUIET):
                 break
             time.sleep(0.05)
         log.info("discovery settled after %.2f s (%d nodes)", time.monotonic() - started,
                  len(last[0]) if last else 0)
 
     def _rewarm(self, executor, pool, topics: list[str], until: float) -> None:
+        """Subscribe again to the topics pooled before a restart, as their publishers are discovered."""
         from ipc.errors import IpcError
 
-        """Subscribe again to the topics pooled before a restart, as their publishers are discovered."""
         def pooled(topic: str) -> bool:
             try:
                 return pool.subscribe(topic)["status"] == "pooled"
