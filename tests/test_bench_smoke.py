@@ -16,7 +16,8 @@ import pytest
 
 from tests.support.procs import REPO
 
-CASES = {"floor8", "floor1", "warm8", "warm1", "echo8", "echo1", "hop1", "inside", "old", "cold", "image", "image_b64", "idle", "memory"}
+CASES = {"floor8", "floor1", "warm8", "warm1", "echo8", "echo1", "hop1", "inside", "old", "cold", "image",
+         "image_b64", "idle", "memory", "streams", "fanout", "stream_image"}
 
 
 @pytest.mark.timeout(120)

@@ -120,10 +120,11 @@ def test_a_caller_beyond_the_pool_waits_for_a_channel_within_its_deadline():
         holder.start()
         poll_until(lambda: worker.stats()["executor"]["current_task_age_ms"] > 0, 5,
                    message="the only channel is busy")
+        # (ping and stats have a pool of their own, on the control socket: use a work command.)
         with pytest.raises(IpcError) as info:
-            client.call("ping", timeout=0.3)
+            client.call("pool", timeout=0.3)
         assert info.value.code == "deadline-exceeded" and "No free channel" in info.value.message
-        assert client.call("ping", timeout=10)["pid"] == worker.pid  # once the channel is free again
+        assert "topics" in client.call("pool", timeout=10)  # once the channel is free again
         holder.join(10)
         assert client.channel_count == 1
     finally:
@@ -156,6 +157,7 @@ slow.join(10)
 gaps = [b - a for a, b in zip(ticks, ticks[1:])]
 out = {"green": ipc_client.green(), "pings_ok": sum(1 for g in pings if g.successful()),
        "slow_ok": slow.successful(), "channels": client.channel_count,
+       "per_endpoint": [pool.open_count for pool in client._pools.values()],
        "ticks": len(ticks), "max_gap_s": round(max(gaps), 3)}
 print(json.dumps(out), flush=True)
 # The disconnect monitor: a call whose worker dies is 'unavailable' at once.
@@ -183,7 +185,9 @@ def test_in_a_gevent_process_calls_are_green_pooled_and_never_block_the_loop():
         first = json.loads(proc.wait_line(lambda line: line.startswith('{"green"'), 60))
         assert first["green"] is True
         assert first["pings_ok"] == 200 and first["slow_ok"]
-        assert 1 <= first["channels"] <= POOL_SIZE
+        # Bounded per endpoint (pings go to the control socket, the sleep to the work socket).
+        assert len(first["per_endpoint"]) == 2 and all(1 <= n <= POOL_SIZE for n in first["per_endpoint"])
+        assert first["channels"] == sum(first["per_endpoint"])
         # The loop kept running while calls waited: a ticker greenlet meant to tick every 10 ms
         # never missed a whole second (a call that blocked the loop would stop it for 2 s).
         assert first["ticks"] > 50 and first["max_gap_s"] < 1.0, first
