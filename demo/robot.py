@@ -10,7 +10,10 @@ newcomer can read live data at once::
                                       → /body/lights/state   (std_msgs/msg/String, latched)
     /diagnostics_agent                → /diagnostics                     (diagnostic_msgs/msg/DiagnosticArray, 1 Hz)
     /perception/camera                → /perception/camera/image_raw     (sensor_msgs/msg/Image, 64x48 rgb8, 5 Hz)
+    /power/battery_monitor            → /power/battery                   (sensor_msgs/msg/BatteryState, 2 Hz)
 
+The battery does not measure its temperature, current or charge: as BatteryState says, those
+are NaN (which JSON cannot carry; see the README on non-finite floats).
 The camera's picture is a test pattern: red grows with x (4 per column), green with y
 (5 per row), and a bright blue bar sweeps across (one column per frame).
 """
@@ -28,7 +31,7 @@ from nav_msgs.msg import Odometry
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import FluidPressure, Image, Temperature
+from sensor_msgs.msg import BatteryState, FluidPressure, Image, Temperature
 from std_msgs.msg import Bool, String
 
 CAMERA_WIDTH, CAMERA_HEIGHT = 64, 48
@@ -107,7 +110,20 @@ def build() -> list[Node]:
         frames[0] += 1
 
     _periodic(camera, "camera/image_raw", Image, 5, image)
-    return [engine, brakes, odometry, lights, diag, camera]
+
+    battery = Node("battery_monitor", namespace="/power")
+
+    def battery_state(msg, t):
+        msg.header.stamp = battery.get_clock().now().to_msg()
+        msg.voltage = 25.2 - 0.5 * (1.0 + math.sin(t / 30.0))
+        msg.percentage = 0.8 + 0.1 * math.sin(t / 30.0)
+        msg.temperature = msg.current = msg.charge = msg.capacity = math.nan   # not measured
+        msg.design_capacity = 20.0
+        msg.power_supply_status = BatteryState.POWER_SUPPLY_STATUS_DISCHARGING
+        msg.present = True
+
+    _periodic(battery, "battery", BatteryState, 2, battery_state)
+    return [engine, brakes, odometry, lights, diag, camera, battery]
 
 
 def test_pattern(frame: int) -> bytes:

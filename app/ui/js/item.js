@@ -110,6 +110,7 @@ export class ItemView {
     this.title = h("h2", {}, this.topic);
     this.typeEl = h("span", { class: "type" });
     this.streamEl = h("span", { class: "badge", dataset: { state: "connecting" } }, "connecting");
+    this.streamDetail = h("span", { class: "muted stream-detail" });
     this.notice = h("p", { class: "muted" });
     this.banner = h("p", { class: "alert stream-error", role: "alert", hidden: true });
     this.metaEl = h("dl", { class: "meta" });
@@ -125,7 +126,8 @@ export class ItemView {
     fill(this.container,
       h("div", { class: "item-head" }, this.title, this.typeEl),
       h("div", { class: "item-controls" }, h("span", { class: "muted" }, "under "),
-        h("code", {}, this.entityPath.replace(/^\/api\/v1\//, "")), this.streamEl, this.intervalEl),
+        h("code", {}, this.entityPath.replace(/^\/api\/v1\//, "")), this.streamEl, this.streamDetail,
+        this.intervalEl),
       this.notice, this.banner, this.metaEl, this.imageEl, this.plotEl,
       h("h3", {}, "Value"), this.valueEl, this.publishEl);
     this.container.dataset.frames = "0";
@@ -157,7 +159,7 @@ export class ItemView {
     const labels = { connecting: "connecting", live: "live", retrying: "reconnecting", closed: "closed" };
     this.streamEl.dataset.state = state;
     this.streamEl.textContent = labels[state] || state;
-    this.streamEl.title = detail ? describe(detail) : "";
+    this.streamDetail.textContent = state === "retrying" && detail ? describe(detail) : "";
   }
 
   async _setInterval(name) {
@@ -168,7 +170,7 @@ export class ItemView {
     try {
       if (this.sub) await this.sub.setInterval(name);
     } catch (error) {
-      this.streamEl.title = `interval not changed: ${describe(error)}`;
+      this.streamDetail.textContent = `interval not changed: ${describe(error)}`;
     }
   }
 

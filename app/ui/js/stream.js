@@ -89,17 +89,23 @@ export class Subscription {
       }
       if (!this.closed) this._retry(new Error("the event stream ended"));
     };
-    this._schedule(() => this._renew(), (DURATION_S * 1000) / 2);
+    this._renewIn((DURATION_S * 1000) / 2);
+  }
+
+  _renewIn(ms) {
+    clearTimeout(this.renewTimer);
+    this.timers.delete(this.renewTimer);
+    this.renewTimer = this._schedule(() => this._renew(), ms);
   }
 
   async _renew() {
     if (this.closed || !this.sub) return;
     try {
       this.sub = await request("PUT", this.subPath, { body: { duration: DURATION_S } });
-      this._schedule(() => this._renew(), (DURATION_S * 1000) / 2);
+      this._renewIn((DURATION_S * 1000) / 2);
     } catch {
       // The stream ends at expiry at the latest; _retry then finds or remakes the subscription.
-      this._schedule(() => this._renew(), RETRY_MAX_MS);
+      this._renewIn(RETRY_MAX_MS);
     }
   }
 
@@ -183,5 +189,6 @@ export class Subscription {
       fn();
     }, ms);
     this.timers.add(timer);
+    return timer;
   }
 }
