@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 BIND   ?= 127.0.0.1:8080
 
-.PHONY: install run test lint bench reliability clean
+.PHONY: install run test lint bench reliability screenshot clean
 
 $(STAMP): pyproject.toml
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "need $(PYTHON) on PATH"; exit 1; }
@@ -30,6 +30,11 @@ bench: $(STAMP)
 
 reliability: $(STAMP)
 	SOVD_RELIABILITY=long $(BIN)/python -m pytest tests/reliability -s -p no:randomly
+
+# The README's picture of the dashboard, taken by its browser test (CI=true: fail, not skip, without chromium).
+screenshot: $(STAMP)
+	CI=true SOVD_UI_SCREENSHOT=docs/dashboard.png $(BIN)/python -m pytest tests/test_ui.py -q -p no:randomly \
+		-k live_value_changes_on_screen
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache

@@ -188,11 +188,14 @@ SCHEMAS: dict[str, Any] = {
         X_medkit__data__provider=_obj(
             ["pool_size", "pool_cap", "pool_hits", "pool_misses", "evictions_total", "type_change_events",
              "graph_events_received", "concurrent_cold_waits", "cold_wait_cap", "unsupported_type_count",
-             "undecodable_messages", "pool_bytes", "pool_bytes_cap"],
+             "undecodable_messages", "pool_bytes", "pool_bytes_cap", "evictions"],
             **{k: INT for k in ("pool_size", "pool_cap", "pool_hits", "pool_misses", "evictions_total",
                                 "type_change_events", "graph_events_received", "concurrent_cold_waits",
                                 "cold_wait_cap", "unsupported_type_count", "undecodable_messages",
-                                "pool_bytes", "pool_bytes_cap")}),
+                                "pool_bytes", "pool_bytes_cap")},
+            evictions={"type": "object", "additionalProperties": INT,
+                       "description": "evictions_total by cause (graph, type_change, lru, idle, qos_rebuild, "
+                                      "manual, shutdown, bytes); empty until the ROS worker first answers"}),
         X_medkit__subscription__executor={
             **_obj(["worker_alive", "degraded", "queue_depth", "queue_max_depth_observed", "queue_dropped",
                     "tasks_completed", "tasks_failed", "last_task_latency_us", "max_task_latency_us",

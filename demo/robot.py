@@ -9,6 +9,13 @@ newcomer can read live data at once::
     /body/lights/controller           ← /body/lights/command (std_msgs/msg/Bool)
                                       → /body/lights/state   (std_msgs/msg/String, latched)
     /diagnostics_agent                → /diagnostics                     (diagnostic_msgs/msg/DiagnosticArray, 1 Hz)
+    /perception/camera                → /perception/camera/image_raw     (sensor_msgs/msg/Image, 64x48 rgb8, 5 Hz)
+    /power/battery_monitor            → /power/battery                   (sensor_msgs/msg/BatteryState, 2 Hz)
+
+The battery does not measure its temperature, current or charge: as BatteryState says, those
+are NaN (which JSON cannot carry; see the README on non-finite floats).
+The camera's picture is a test pattern: red grows with x (4 per column), green with y
+(5 per row), and a bright blue bar sweeps across (one column per frame).
 """
 
 from __future__ import annotations
@@ -24,9 +31,10 @@ from nav_msgs.msg import Odometry
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import FluidPressure, Temperature
+from sensor_msgs.msg import BatteryState, FluidPressure, Image, Temperature
 from std_msgs.msg import Bool, String
 
+CAMERA_WIDTH, CAMERA_HEIGHT = 64, 48
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
@@ -90,7 +98,43 @@ def build() -> list[Node]:
                                        values=[KeyValue(key="rpm", value=str(int(800 + 50 * math.sin(t))))])]
 
     _periodic(diag, "/diagnostics", DiagnosticArray, 1, diagnostics)
-    return [engine, brakes, odometry, lights, diag]
+
+    camera = Node("camera", namespace="/perception")
+    frames = [0]
+
+    def image(msg, t):
+        msg.header.stamp = camera.get_clock().now().to_msg()
+        msg.header.frame_id = "camera"
+        msg.height, msg.width, msg.encoding, msg.step = CAMERA_HEIGHT, CAMERA_WIDTH, "rgb8", CAMERA_WIDTH * 3
+        msg.data = test_pattern(frames[0])
+        frames[0] += 1
+
+    _periodic(camera, "camera/image_raw", Image, 5, image)
+
+    battery = Node("battery_monitor", namespace="/power")
+
+    def battery_state(msg, t):
+        msg.header.stamp = battery.get_clock().now().to_msg()
+        msg.voltage = 25.2 - 0.5 * (1.0 + math.sin(t / 30.0))
+        msg.percentage = 0.8 + 0.1 * math.sin(t / 30.0)
+        msg.temperature = msg.current = msg.charge = msg.capacity = math.nan   # not measured
+        msg.design_capacity = 20.0
+        msg.power_supply_status = BatteryState.POWER_SUPPLY_STATUS_DISCHARGING
+        msg.present = True
+
+    _periodic(battery, "battery", BatteryState, 2, battery_state)
+    return [engine, brakes, odometry, lights, diag, camera, battery]
+
+
+def test_pattern(frame: int) -> bytes:
+    """One rgb8 picture of the camera (see the module docstring)."""
+    bar = frame % CAMERA_WIDTH
+    pixels = bytearray(CAMERA_WIDTH * CAMERA_HEIGHT * 3)
+    for y in range(CAMERA_HEIGHT):
+        for x in range(CAMERA_WIDTH):
+            i = (y * CAMERA_WIDTH + x) * 3
+            pixels[i], pixels[i + 1], pixels[i + 2] = 4 * x, 5 * y, 255 if x == bar else 40
+    return bytes(pixels)
 
 
 def main() -> None:

@@ -65,7 +65,8 @@ def test_health_with_live_worker(client):
     assert body["status"] == "healthy"
     assert isinstance(body["timestamp"], int) and body["timestamp"] > 1_600_000_000 * 10**9
     assert body["discovery"] == {"mode": "runtime_only", "strategy": "runtime"}
-    assert body["x-medkit-data-provider"] == STATS["data_provider"]
+    assert body["x-medkit-data-provider"] == {**STATS["data_provider"],
+                                              "evictions": STATS["details"]["evictions"]}
     assert body["x-medkit-subscription-executor"] == STATS["executor"]
 
 
@@ -89,7 +90,8 @@ def test_health_without_worker_answers_at_once(tmp_path):
     assert executor["worker_alive"] is False and executor["degraded"] is False
     assert set(executor) == set(STATS["executor"])
     provider = body["x-medkit-data-provider"]
-    assert set(provider) == set(STATS["data_provider"])
+    assert set(provider) == set(STATS["data_provider"]) | {"evictions"}
+    assert provider["evictions"] == {}  # by cause: unknown until the ROS worker first answers
     assert provider["pool_cap"] == 99 and provider["cold_wait_cap"] == 7 and provider["pool_hits"] == 0
 
 
@@ -184,7 +186,8 @@ def test_topic_named_docs_is_still_readable(client, fw):
     assert "paths" in client.get("/api/v1/apps/temp_sensor/data/docs").get_json()
 
 
-@pytest.mark.parametrize("path", ["/api/v1/nope", "/api/v2/", "/", "/api/v1/apps/x/y/z",
+# "/" is the dashboard now (it redirects to ui/: tests/test_app_ui.py); any other path outside it stays a 404.
+@pytest.mark.parametrize("path", ["/api/v1/nope", "/api/v2/", "/robots", "/api/v1/apps/x/y/z",
                                   "/api/v1/robots/x"])
 def test_unmatched_route_is_json_404(client, path):
     r = client.get(path)

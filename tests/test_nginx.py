@@ -49,13 +49,16 @@ def site_for(upstream_port: int, listen_port: int) -> str:
 
 
 class Nginx(Proc):
-    def __init__(self, upstream_port: int, prefix: Path):
+    """nginx with the site file (or another ``site(upstream_port, listen_port)``), up when ``health`` answers."""
+
+    def __init__(self, upstream_port: int, prefix: Path, site=site_for, health: str = "/api/v1/health"):
+        self.health = health
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.prefix = prefix
         for d in ("logs", "client_body", "proxy", "fastcgi", "uwsgi", "scgi"):
             (prefix / d).mkdir(parents=True, exist_ok=True)
-        (prefix / "site.conf").write_text(site_for(upstream_port, self.port))
+        (prefix / "site.conf").write_text(site(upstream_port, self.port))
         user = "user root;\n" if os.geteuid() == 0 else ""  # workers must write the temp dirs
         (prefix / "nginx.conf").write_text(f"""{user}worker_processes 1;
 events {{ worker_connections 256; }}
@@ -82,7 +85,7 @@ http {{
     def _up(self) -> bool:
         if self.proc.poll() is not None:
             raise AssertionError("nginx exited:\n" + self.error_log())
-        return requests.get(self.url + "/api/v1/health", timeout=2).status_code == 200
+        return requests.get(self.url + self.health, timeout=2).status_code == 200
 
     def error_log(self) -> str:
         path = self.prefix / "logs" / "error.log"

@@ -141,8 +141,12 @@ def _sections(stats: dict[str, Any] | None) -> tuple[dict[str, Any], dict[str, A
     executor.update(worker_alive=False, degraded=False)
     streams: dict[str, Any] = {k: 0 for k in STREAMS_KEYS}
     streams["max_subscriptions"] = cfg.max_subscriptions
+    provider["evictions"] = {}  # evictions_total by cause, as the ROS worker counts them
     if stats:
         for section, name in ((provider, "data_provider"), (executor, "executor"), (streams, "streams")):
             if isinstance(stats.get(name), dict):
                 section.update(stats[name])
+        details = stats.get("details")
+        if isinstance(details, dict) and isinstance(details.get("evictions"), dict):
+            provider["evictions"] = dict(details["evictions"])
     return provider, executor, streams

@@ -1,0 +1,76 @@
+// The dashboard's entry point: the overview (GET /api/v1/), the health panel, the entity tree,
+// and the data item view chosen by the location hash (#/apps/<id>/data/<topic>).
+//
+// One data item view at a time, so the page holds at most one stream.  The view is destroyed
+// (its subscription DELETEd) when the hash changes and when the page goes away (pagehide: the
+// DELETE is then sent as a keepalive request).  The tree is reloaded by its button, after the ROS
+// worker comes back from an outage, and every TREE_RELOAD_MS while the gateway is healthy.
+
+import { describe, get } from "./api.js";
+import { fill, h } from "./dom.js";
+import { HealthPanel } from "./health.js";
+import { ItemView } from "./item.js";
+import { EntityTree } from "./tree.js";
+
+const TREE_RELOAD_MS = 30000;
+const ROUTE = /^#\/(apps|components|functions)\/([A-Za-z0-9_-]+)\/data\/(.+)$/;
+
+const $ = (id) => document.getElementById(id);
+let capabilities = {};
+let view = null;
+let overviewLoaded = false;
+
+const tree = new EntityTree($("tree"), $("tree-status"), $("search"), $("show-system"));
+const health = new HealthPanel($("health-body"), $("worker-badge"));
+
+async function loadOverview() {
+  try {
+    const overview = await get("");
+    capabilities = overview.capabilities || {};
+    $("gateway-version").textContent = `${overview.version}` +
+      (capabilities.publishing ? " · publishing on" : " · read-only");
+    overviewLoaded = true;
+  } catch (error) {
+    $("gateway-version").textContent = `overview not loaded: ${describe(error)}`;
+  }
+}
+
+function showRoute() {
+  const match = ROUTE.exec(decodeURI(location.hash));
+  if (view) view.destroy();
+  view = null;
+  tree.select(location.hash);
+  const container = $("item");
+  if (!match) {
+    fill(container, h("div", { class: "placeholder" }, h("h2", {}, "Pick a data item"),
+      h("p", {}, "Choose a topic in the tree to see its live value, plot its fields and, where the "
+        + "gateway allows it, publish to it.")));
+    return;
+  }
+  const [, collection, entityId, topic] = match;
+  view = new ItemView(container, { collection, entityId, topic }, { capabilities });
+  view.start();
+}
+
+window.addEventListener("hashchange", showRoute);
+window.addEventListener("pagehide", () => {
+  if (view) view.destroy({ unloading: true });
+  view = null;
+});
+window.addEventListener("sovd-health", (event) => {
+  const { state, previous } = event.detail;
+  if (state === "healthy" && (previous === "unavailable" || previous === "unreachable")) {
+    if (!overviewLoaded) loadOverview();
+    tree.load();
+    if (view && view.failed) showRoute(); // it could not start while the worker was away
+  }
+});
+$("tree-reload").addEventListener("click", () => tree.load());
+setInterval(() => {
+  if (health.state === "healthy" && !document.hidden && Date.now() - tree.loadedAt >= TREE_RELOAD_MS) tree.load();
+}, 1000);
+
+health.start();
+await loadOverview();
+tree.load();
+showRoute();
