@@ -1,0 +1,67 @@
+"""Every HTTP request's id: ``X-Request-Id`` on every response, in the access log and across the IPC.
+
+Registered first by the app factory, so that every later hook, error and
+refusal (a 429 included) is answered with it.  Before each request
+(:func:`_assign`, on the request's greenlet): a valid incoming
+``X-Request-Id`` (1–128 characters of ``[A-Za-z0-9._-]``,
+``ipc.protocol.valid_request_id``) is kept, anything else is replaced by a
+new random id.  After it (:func:`_echo`) the response carries the id; the
+access line reads it from there (``%({x-request-id}o)s``,
+``app/gunicorn_conf.py``).  :func:`current` gives it to the ROS-worker client
+(``app/rosclient.py``), which sends it in the IPC envelope, so the ROS
+worker's log lines of that command carry it too (``rosworker/requestlog.py``).
+
+:class:`RequestIdFilter` adds `` [request <id>]`` to the HTTP worker's own log
+lines written inside a request (Flask's handler: an unhandled error's
+traceback, for one).
+"""
+
+from __future__ import annotations
+
+import logging
+import uuid
+
+from flask import Flask, Response, g, has_request_context, request
+from flask.logging import default_handler
+
+from ipc.protocol import valid_request_id
+
+HEADER = "X-Request-Id"
+
+
+def current() -> str | None:
+    """The id of the request being served on this greenlet/thread, or None outside a request."""
+    if not has_request_context():
+        return None
+    return g.get("request_id")
+
+
+def _assign() -> None:
+    incoming = request.headers.get(HEADER)
+    g.request_id = incoming if valid_request_id(incoming) else uuid.uuid4().hex
+
+
+def _echo(response: Response) -> Response:
+    request_id = g.get("request_id")
+    if request_id is not None:
+        response.headers[HEADER] = request_id
+    return response
+
+
+class RequestIdFilter(logging.Filter):
+    """Sets ``record.request_tag``: `` [request <id>]`` inside a request, else empty."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        request_id = current()
+        record.request_tag = f" [request {request_id}]" if request_id else ""
+        return True
+
+
+def init_app(app: Flask) -> None:
+    """Register before every other hook (the app factory calls this first)."""
+    app.before_request(_assign)
+    app.after_request(_echo)
+    if not any(isinstance(f, RequestIdFilter) for f in default_handler.filters):
+        default_handler.addFilter(RequestIdFilter())
+        default_handler.setFormatter(logging.Formatter(
+            "[%(asctime)s] %(levelname)s in %(module)s: %(message)s%(request_tag)s"))
