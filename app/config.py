@@ -219,6 +219,7 @@ def load(args: argparse.Namespace | None = None, environ: dict[str, str] | None 
     environ = os.environ if environ is None else environ
     flags = vars(args) if args is not None else {}
     values: dict[str, Any] = {s.name: s.default for s in SETTINGS}
+    sources: dict[str, str] = {}  # where a value came from, for the messages of the checks below
     ignored: list[str] = []
 
     def retired(name: str, source: str) -> None:
@@ -242,12 +243,15 @@ def load(args: argparse.Namespace | None = None, environ: dict[str, str] | None 
             if setting is None:
                 raise ConfigError(f"config file {path}: unknown setting {key!r}")
             values[key] = setting.parse(raw, f"config file {path}")
+            sources[key] = f"config file {path}"
 
     for s in SETTINGS:
         if s.env in environ:
             values[s.name] = s.parse(environ[s.env], f"environment {s.env}")
+            sources[s.name] = f"environment {s.env}"
         if flags.get(s.name) is not None:
             values[s.name] = s.parse(flags[s.name], f"flag {s.flag}")
+            sources[s.name] = f"flag {s.flag}"
     for name in RETIRED:
         env = ENV_PREFIX + name.upper()
         if env in environ:
@@ -267,9 +271,12 @@ def load(args: argparse.Namespace | None = None, environ: dict[str, str] | None 
         values["runtime_dir"] = default_runtime_dir(environ)
     if values["api_token"] and len(values["api_token"]) < 16:
         raise ConfigError("api_token: use at least 16 characters")
+    def named(name: str) -> str:
+        return f"{name} (from {sources[name]})" if name in sources else name
+
     for name in ("rate_limit", "rate_limit_global"):
-        parse_rate(values[name], name)
-    parse_origins(values["cors_origins"])
+        parse_rate(values[name], named(name))
+    parse_origins(values["cors_origins"], named("cors_origins"))
     cfg = Config(values)
     cfg.ignored = tuple(ignored)
     return cfg
@@ -301,19 +308,19 @@ def parse_rate(text: str, name: str = "rate_limit") -> Rate | None:
     return Rate(rate, burst)
 
 
-def parse_origins(text: str) -> tuple[str, ...] | str | None:
+def parse_origins(text: str, name: str = "cors_origins") -> tuple[str, ...] | str | None:
     """``cors_origins``: None (off), ``"*"`` (any origin), or the exact origins allowed."""
     items = [item.strip() for item in text.split(",") if item.strip()]
     if not items:
         return None
     if "*" in items:
         if len(items) > 1:
-            raise ConfigError("cors_origins: * allows every origin; give it alone, or list exact origins")
+            raise ConfigError(f"{name}: * allows every origin; give it alone, or list exact origins")
         return "*"
     for item in items:
         m = _ORIGIN.match(item)
         if not m or (m.group(3) and not 0 < int(m.group(3)[1:]) < 65536):
-            raise ConfigError(f"cors_origins: {item!r} is not an origin: scheme://host[:port] with http or "
+            raise ConfigError(f"{name}: {item!r} is not an origin: scheme://host[:port] with http or "
                               "https, no path and no trailing slash (e.g. https://dashboard.example:8443)")
     return tuple(dict.fromkeys(items))
 

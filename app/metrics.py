@@ -39,7 +39,7 @@ import time
 from collections.abc import Iterator
 from typing import Any
 
-from flask import Blueprint, Flask, Response, current_app, g, request
+from flask import Blueprint, Flask, Response, current_app, request
 
 from . import rosclient, runfiles
 
@@ -78,6 +78,21 @@ class HttpMetrics:
             "sovd_http_rate_limited", "Requests refused with 429 by the rate limiter, by the bucket "
             "that was empty (client or global)", ["scope"], registry=None)
 
+        # (route, method, status) -> (request counter, latency histogram) of that label set:
+        # prometheus_client's labels() costs more than the increment itself.
+        self._children: dict[tuple[str, str, int], tuple[Any, Any]] = {}
+
+    def observe(self, route: str, method: str, status: int, seconds: float) -> None:
+        """One request answered: count it and time it (labels bounded: templates, known methods)."""
+        key = (route, method, status)
+        children = self._children.get(key)
+        if children is None:
+            label = method if method in METHODS else "other"
+            children = self._children[key] = (self.requests.labels(route, label, str(status)),
+                                               self.latency.labels(route))
+        children[0].inc()
+        children[1].observe(seconds)
+
     def families(self):
         for metric in (self.requests, self.latency, self.streams_open, self.frames_sent,
                        self.frames_dropped, self.rate_limited):
@@ -101,20 +116,21 @@ def multiproc_dir() -> str | None:
 
 
 # ---- request hooks ------------------------------------------------------------------------------
+T0 = "sovd.metrics.t0"  # in the request's environ: when it began
+
+
 def _start() -> None:
-    g.metrics_t0 = time.perf_counter()
+    request.environ[T0] = time.perf_counter()
 
 
 def _finish(response: Response) -> Response:
-    t0 = g.pop("metrics_t0", None)
+    req = request._get_current_object()
+    t0 = req.environ.pop(T0, None)
     if t0 is None:
         return response
-    rule = request.url_rule
-    route = rule.rule if rule is not None else UNMATCHED
-    method = request.method if request.method in METHODS else "other"
-    m = http()
-    m.requests.labels(route, method, str(response.status_code)).inc()
-    m.latency.labels(route).observe(time.perf_counter() - t0)
+    rule = req.url_rule
+    http().observe(rule.rule if rule is not None else UNMATCHED, req.method, response.status_code,
+                   time.perf_counter() - t0)
     return response
 
 

@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import errno
 import fcntl
+import functools
 import hashlib
 import logging
 import math
@@ -54,7 +55,7 @@ import struct
 import time
 from dataclasses import dataclass
 
-from flask import Flask, Response, current_app, g, request
+from flask import Flask, Response, current_app, request
 
 from . import config as settings
 from . import metrics, runfiles
@@ -68,9 +69,12 @@ SLOTS = 8192          # client buckets held at once (32 bytes each)
 PROBE = 8             # places a client's bucket may take in the table
 LOCK_WAIT = 0.05      # seconds a check waits for the lock before it lets the request through
 LOCK_RETRY = 0.0002
+KEY_CACHE = 4096      # addresses whose bucket key a worker remembers
 MAGIC = b"SOVDRL01"
 _HEADER = struct.Struct("<8sI4x16sdd")   # magic, slots, salt, global tokens, global last refill
 _SLOT = struct.Struct("<16sdd")          # key, tokens, last refill (monotonic; 0 = empty)
+_GLOBAL = struct.Struct("<dd")           # the global bucket, at the end of the header
+_GLOBAL_AT = _HEADER.size - _GLOBAL.size
 
 
 @dataclass(frozen=True, slots=True)
@@ -118,6 +122,12 @@ class SharedBuckets:
             raise
         self._fd, self._map, self._pid = fd, mapped, os.getpid()
         self._salt = _HEADER.unpack_from(mapped, 0)[2]
+        self._key = functools.lru_cache(maxsize=KEY_CACHE)(self._digest)
+
+    def _digest(self, address: str) -> bytes:
+        """The bucket key of an address: a hash keyed by the file's random salt (no chosen collisions)."""
+        return hashlib.blake2b(address.encode("utf-8", "surrogateescape"), digest_size=16,
+                               key=self._salt).digest()
 
     def close(self) -> None:
         if self._pid == os.getpid():
@@ -146,8 +156,7 @@ class SharedBuckets:
             return None
         if self._pid != os.getpid():
             self._open()
-        key = hashlib.blake2b(address.encode("utf-8", "surrogateescape"), digest_size=16,
-                              key=self._salt).digest() if self.client is not None else b""
+        key = self._key(address) if self.client is not None else b""
         if not self._lock():
             self._lock_failed()
             return None
@@ -157,32 +166,34 @@ class SharedBuckets:
             fcntl.flock(self._fd, fcntl.LOCK_UN)
 
     def _take(self, mm: mmap.mmap, key: bytes, now: float) -> Decision:
-        buckets = []  # (scope, rate, tokens now, write-back)
-        if self.overall is not None:
-            _, _, _, tokens, last = _HEADER.unpack_from(mm, 0)
-            tokens = _refill(self.overall, tokens, last, now)
-            buckets.append(("global", self.overall, tokens,
-                            lambda t: struct.pack_into("<dd", mm, _HEADER.size - 16, t, now)))
-        if self.client is not None:
-            offset, tokens = self._slot(mm, key, now)
-            buckets.append(("client", self.client, tokens,
-                            lambda t, o=offset: _SLOT.pack_into(mm, o, key, t, now)))
-        allowed = all(tokens >= 1.0 for _, _, tokens, _ in buckets)
-        worst = None
-        for scope, rate, tokens, write in buckets:
-            left = tokens - 1.0 if allowed else tokens
-            write(left)
-            if allowed:
-                full_in, retry = (rate.burst - left) / rate.rate, 0
-            elif tokens >= 1.0:
-                continue  # not the bucket that refused
-            else:
-                full_in, retry = (rate.burst - left) / rate.rate, max(1, math.ceil((1.0 - left) / rate.rate))
-            candidate = Decision(allowed, scope, rate.burst, max(0, int(left)), full_in, retry)
-            if worst is None or (candidate.remaining, -candidate.retry_after) < (worst.remaining,
-                                                                                 -worst.retry_after):
-                worst = candidate
-        return worst
+        overall, client = self.overall, self.client
+        g_tokens = c_tokens = None
+        if overall is not None:
+            g_tokens = _refill(overall, *_GLOBAL.unpack_from(mm, _GLOBAL_AT), now)
+        if client is not None:
+            offset, c_tokens = self._slot(mm, key, now)
+        allowed = (g_tokens is None or g_tokens >= 1.0) and (c_tokens is None or c_tokens >= 1.0)
+        if allowed:
+            g_tokens = None if g_tokens is None else g_tokens - 1.0
+            c_tokens = None if c_tokens is None else c_tokens - 1.0
+        if g_tokens is not None:
+            _GLOBAL.pack_into(mm, _GLOBAL_AT, g_tokens, now)
+        if c_tokens is not None:
+            _SLOT.pack_into(mm, offset, key, c_tokens, now)
+        # Describe the bucket that refused (the longer wait if both did), else the emptier one.
+        if c_tokens is None:
+            use_global = True
+        elif g_tokens is None:
+            use_global = False
+        elif allowed:
+            use_global = g_tokens < c_tokens
+        elif g_tokens < 1.0 and c_tokens < 1.0:
+            use_global = (1.0 - g_tokens) / overall.rate > (1.0 - c_tokens) / client.rate
+        else:
+            use_global = g_tokens < 1.0
+        scope, rate, tokens = ("global", overall, g_tokens) if use_global else ("client", client, c_tokens)
+        retry = 0 if allowed else max(1, math.ceil((1.0 - tokens) / rate.rate))
+        return Decision(allowed, scope, rate.burst, max(0, int(tokens)), (rate.burst - tokens) / rate.rate, retry)
 
     def _slot(self, mm: mmap.mmap, key: bytes, now: float) -> tuple[int, float]:
         """The offset of ``key``'s bucket (found, or a place for it) and its tokens now."""
@@ -218,13 +229,17 @@ def _refill(rate: settings.Rate, tokens: float, last: float, now: float) -> floa
 
 
 # ---- Flask ------------------------------------------------------------------------------------------
+DECISION = "sovd.ratelimit"  # in the request's environ: the decision its headers describe
+
+
 def _check() -> Response | None:
-    if request.endpoint in EXEMPT_ENDPOINTS or _preflight():
+    req = request._get_current_object()
+    if req.endpoint in EXEMPT_ENDPOINTS or _preflight(req):
         return None
-    decision = current_app.extensions[EXTENSION].take(request.environ.get("REMOTE_ADDR") or "")
+    decision = current_app.extensions[EXTENSION].take(req.environ.get("REMOTE_ADDR") or "")
     if decision is None:
         return None
-    g.rate_limit = decision
+    req.environ[DECISION] = decision
     if decision.allowed:
         return None
     metrics.rate_limited(decision.scope)
@@ -237,9 +252,9 @@ def _check() -> Response | None:
         retry_after=decision.retry_after))
 
 
-def _preflight() -> bool:
+def _preflight(req) -> bool:
     """A CORS preflight: not counted (refusing it would hide the 429 of the real request from the page)."""
-    return request.method == "OPTIONS" and "Access-Control-Request-Method" in request.headers
+    return req.method == "OPTIONS" and "Access-Control-Request-Method" in req.headers
 
 
 def _reset(decision: Decision) -> int:
@@ -247,11 +262,11 @@ def _reset(decision: Decision) -> int:
 
 
 def _headers(response: Response) -> Response:
-    decision = g.get("rate_limit")
+    decision = request.environ.get(DECISION)
     if decision is not None:
-        response.headers["X-RateLimit-Limit"] = str(decision.limit)
-        response.headers["X-RateLimit-Remaining"] = str(decision.remaining)
-        response.headers["X-RateLimit-Reset"] = str(_reset(decision))
+        response.headers.extend((("X-RateLimit-Limit", str(decision.limit)),
+                                 ("X-RateLimit-Remaining", str(decision.remaining)),
+                                 ("X-RateLimit-Reset", str(_reset(decision)))))
     return response
 
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 import logging
 import uuid
 
-from flask import Flask, Response, g, has_request_context, request
+from flask import Flask, Response, has_request_context, request
 from flask.logging import default_handler
 
 from ipc.protocol import valid_request_id
@@ -29,22 +29,26 @@ from ipc.protocol import valid_request_id
 HEADER = "X-Request-Id"
 
 
+ENVIRON_KEY = "sovd.request_id"
+
+
 def current() -> str | None:
     """The id of the request being served on this greenlet/thread, or None outside a request."""
     if not has_request_context():
         return None
-    return g.get("request_id")
+    return request.environ.get(ENVIRON_KEY)
 
 
 def _assign() -> None:
-    incoming = request.headers.get(HEADER)
-    g.request_id = incoming if valid_request_id(incoming) else uuid.uuid4().hex
+    environ = request.environ
+    incoming = environ.get("HTTP_X_REQUEST_ID")
+    environ[ENVIRON_KEY] = incoming if valid_request_id(incoming) else uuid.uuid4().hex
 
 
 def _echo(response: Response) -> Response:
-    request_id = g.get("request_id")
+    request_id = request.environ.get(ENVIRON_KEY)
     if request_id is not None:
-        response.headers[HEADER] = request_id
+        response.headers.set(HEADER, request_id)
     return response
 
 

@@ -65,6 +65,12 @@ def test_headers_describe_the_bucket_closer_to_empty(tmp_path):
     b = buckets(tmp_path, client="1/10", overall="100/3")
     d = take(b, "a", 7.0)
     assert d.allowed and (d.scope, d.limit, d.remaining) == ("global", 3, 2)
+    # Both empty: the answer names the one that makes the client wait longer.
+    (tmp_path / "both").mkdir()
+    b = buckets(tmp_path / "both", client="1/1", overall="0.5/1")
+    assert take(b, "a", 9.0).allowed
+    d = take(b, "a", 9.0)
+    assert not d.allowed and (d.scope, d.retry_after) == ("global", 2)
 
 
 def test_memory_is_bounded_and_refilled_buckets_are_reused(tmp_path):

@@ -49,7 +49,7 @@ def scaled(short: Any, long: Any) -> Any:
 ERROR_CODES = {
     "invalid-request", "invalid-parameter", "entity-not-found", "resource-not-found",
     "internal-error", "not-implemented", "service-unavailable", "not-responding", "vendor-error",
-    "unauthorized", "forbidden", "payload-too-large",
+    "unauthorized", "forbidden", "payload-too-large", "rate-limit-exceeded",
 }
 # vendor_code -> the HTTP status it travels with (ipc/errors.py and rest-contract.md)
 VENDOR_CODES = {
