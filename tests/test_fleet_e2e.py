@@ -269,6 +269,28 @@ def test_route_labels_stay_bounded_under_a_storm_of_random_paths(gw):
     assert methods <= {"GET", "HEAD", "POST", "PUT", "DELETE", "PATCH", "OPTIONS", "other"}
 
 
+def test_a_dead_http_workers_live_gauges_leave_the_sums_and_its_counters_stay(gw):
+    """gunicorn's child_exit hook marks a dead worker's files (prometheus_client's multiprocess docs)."""
+    r = requests.post(f"{gw.api}/apps/{APP}/cyclic-subscriptions", headers=client(8000), timeout=10, json={
+        "resource": f"/api/v1/apps/{APP}/data{TOPIC}", "interval": "fast", "duration": 60})
+    assert r.status_code == 201, r.text
+    with EventStream(gw.port, r.json()["event_source"], headers=client(8001)) as stream:
+        assert "payload" in stream.next(timeout=10)
+        before = scrape(gw)
+        assert value(before, "sovd_http_streams_open") == 1
+        holder = next(w for w in gw.http_workers()
+                      if any(c.raddr and c.raddr.port == stream.local_port for c in w.net_connections("tcp")))
+        counted = sum(s.value for s in before["sovd_http_requests"].samples if s.name == "sovd_http_requests_total")
+        holder.send_signal(signal.SIGKILL)
+        poll_until(lambda: len(gw.http_workers()) == 2 and holder.pid not in [w.pid for w in gw.http_workers()],
+                   30, message="gunicorn replaced the killed worker")
+        after = poll_until(lambda: (lambda f: f if value(f, "sovd_http_streams_open") == 0 else None)(scrape(gw)),
+                           10, message="the dead worker's open streams left the sum")
+    # Its counters stay in the sums: they never go backwards.
+    assert sum(s.value for s in after["sovd_http_requests"].samples
+               if s.name == "sovd_http_requests_total") >= counted
+
+
 def test_a_scrape_while_the_ros_worker_is_down_answers_at_once_and_the_restart_is_counted(gw):
     old = gw.rosworker_pid()
     gw.rosworker().send_signal(signal.SIGKILL)
