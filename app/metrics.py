@@ -84,11 +84,10 @@ class HttpMetrics:
 
     def observe(self, route: str, method: str, status: int, seconds: float) -> None:
         """One request answered: count it and time it (labels bounded: templates, known methods)."""
-        key = (route, method, status)
+        key = (route, method if method in METHODS else "other", status)  # bounded, whatever is sent
         children = self._children.get(key)
         if children is None:
-            label = method if method in METHODS else "other"
-            children = self._children[key] = (self.requests.labels(route, label, str(status)),
+            children = self._children[key] = (self.requests.labels(route, key[1], str(status)),
                                                self.latency.labels(route))
         children[0].inc()
         children[1].observe(seconds)

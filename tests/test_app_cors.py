@@ -16,10 +16,9 @@ CORS_HEADERS = ("Access-Control-Allow-Origin", "Access-Control-Allow-Credentials
 
 @pytest.fixture(scope="module")
 def fw():
-    worker = FakeWorker().start()
-    worker.set_graph(list(ROBOT))
-    yield worker
-    worker.stop()
+    with FakeWorker() as worker:
+        worker.set_graph(list(ROBOT))
+        yield worker
 
 
 @pytest.fixture(scope="module")

@@ -40,15 +40,14 @@ def value(families: dict, family: str, sample: str | None = None, **labels) -> f
 
 @pytest.fixture(scope="module")
 def fw():
-    worker = FakeWorker().start()
-    worker.set_graph(list(ROBOT))
-    worker.samples[TOPIC] = data_sample(TOPIC, "sensor_msgs/msg/Temperature", {"temperature": 93.5})
-    worker.stats["details"] = {"evictions": {"lru": 3, "idle": 1}, "commands": {
-        "sample": {"count": 7, "time_us": 700}}, "ticks": {"fast": 5}, "publishers": 2}
-    worker.stats["streams"] = {"active_subscriptions": 2, "max_subscriptions": 1000,
-                               "subscriptions_created": 4, "frames_published": 40}
-    yield worker
-    worker.stop()
+    with FakeWorker() as worker:
+        worker.set_graph(list(ROBOT))
+        worker.samples[TOPIC] = data_sample(TOPIC, "sensor_msgs/msg/Temperature", {"temperature": 93.5})
+        worker.stats["details"] = {"evictions": {"lru": 3, "idle": 1}, "commands": {
+            "sample": {"count": 7, "time_us": 700}}, "ticks": {"fast": 5}, "publishers": 2}
+        worker.stats["streams"] = {"active_subscriptions": 2, "max_subscriptions": 1000,
+                                   "subscriptions_created": 4, "frames_published": 40}
+        yield worker
 
 
 @pytest.fixture(scope="module")
@@ -164,4 +163,5 @@ def test_after_the_storm_only_route_templates_and_known_methods_are_labels(clien
     assert "other" in methods  # BREW is counted, under a bounded label
     # Bounded by routes × methods × statuses seen, not by the ~300 distinct paths sent.
     assert series <= len(app_rules) * 8 * 10
+    assert len(metrics.http()._children) == series  # nor does the cache of label sets grow past them
     assert len(routes) < 40

@@ -113,10 +113,9 @@ def test_client_address_behind_trusted_proxies():
 
 @pytest.fixture(scope="module")
 def fw():
-    worker = FakeWorker().start()
-    worker.set_graph(list(ROBOT))
-    yield worker
-    worker.stop()
+    with FakeWorker() as worker:
+        worker.set_graph(list(ROBOT))
+        yield worker
 
 
 def test_a_429_is_the_contracts_error_with_its_headers_and_monitoring_is_never_limited(fw):

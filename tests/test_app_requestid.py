@@ -18,11 +18,10 @@ TOPIC = "/powertrain/engine/temperature"
 
 @pytest.fixture(scope="module")
 def fw():
-    worker = FakeWorker().start()
-    worker.set_graph(list(ROBOT))
-    worker.samples[TOPIC] = data_sample(TOPIC, "sensor_msgs/msg/Temperature", {"temperature": 1.0})
-    yield worker
-    worker.stop()
+    with FakeWorker() as worker:
+        worker.set_graph(list(ROBOT))
+        worker.samples[TOPIC] = data_sample(TOPIC, "sensor_msgs/msg/Temperature", {"temperature": 1.0})
+        yield worker
 
 
 @pytest.fixture(scope="module")
