@@ -19,7 +19,7 @@ traceback, for one).
 from __future__ import annotations
 
 import logging
-import uuid
+import os
 
 from flask import Flask, Response, has_request_context, request
 from flask.logging import default_handler
@@ -42,7 +42,7 @@ def current() -> str | None:
 def _assign() -> None:
     environ = request.environ
     incoming = environ.get("HTTP_X_REQUEST_ID")
-    environ[ENVIRON_KEY] = incoming if valid_request_id(incoming) else uuid.uuid4().hex
+    environ[ENVIRON_KEY] = incoming if valid_request_id(incoming) else os.urandom(16).hex()
 
 
 def _echo(response: Response) -> Response:
