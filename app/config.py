@@ -17,6 +17,7 @@ probe all import it.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import re
 import tempfile
@@ -25,6 +26,10 @@ from dataclasses import dataclass
 from typing import Any
 
 ENV_PREFIX = "SOVD_"
+ACCESS_LOG_RATE = 100.0     # access lines per second, all HTTP workers together (app/accesslog.py)
+ACCESS_LOG_BURST = 1000     # access lines at once before the rate applies
+RATE_MAX = 1_000_000.0      # bounds of a RATE/BURST setting
+BURST_MAX = 1_000_000
 
 
 class ConfigError(ValueError):
@@ -137,6 +142,15 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("body_timeout", float, 30.0, "seconds a client may take to send a request's body (408 past it)",
             1, 600),
     Setting("forwarded_allow_ips", str, "127.0.0.1,::1", "proxies trusted for X-Forwarded-* headers"),
+    # --- operating it in a fleet (README "Metrics, CORS, rate limits, request ids, access log") ---
+    Setting("cors_origins", str, "", "browser origins allowed to call the API: a comma-separated list "
+            "of exact origins (https://ui.example:8443), or * for any (empty: CORS off)"),
+    Setting("rate_limit", str, "", "token bucket per client address: RATE/BURST in requests per second "
+            "and requests at once, e.g. 50/100 (empty: off)"),
+    Setting("rate_limit_global", str, "", "token bucket over all clients together: RATE/BURST "
+            "(empty: off)"),
+    Setting("access_log", bool, False, "one line per request on stdout (the journal), at most "
+            f"{ACCESS_LOG_RATE:g} lines/s in all"),
     # --- service ---
     Setting("runtime_dir", str, "", "directory for the IPC socket and lock (default: see README)"),
     Setting("log_level", str, "info", "log level", choices=("debug", "info", "warning", "error")),
@@ -154,6 +168,8 @@ RETIRED = {
     "threads": "the HTTP workers run an event loop, not threads; "
                "worker_connections bounds what one worker holds",
 }
+_RATE = re.compile(r"^\s*([0-9]+(?:\.[0-9]+)?)\s*(?:/\s*([0-9]+)\s*)?$")
+_ORIGIN = re.compile(r"^https?://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9-]+(\.[A-Za-z0-9-]+)*)(:[0-9]{1,5})?$")
 _NODE_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]{0,200}$")
 _BIND = re.compile(r"^(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
 
@@ -205,6 +221,7 @@ def load(args: argparse.Namespace | None = None, environ: dict[str, str] | None 
     environ = os.environ if environ is None else environ
     flags = vars(args) if args is not None else {}
     values: dict[str, Any] = {s.name: s.default for s in SETTINGS}
+    sources: dict[str, str] = {}  # where a value came from, for the messages of the checks below
     ignored: list[str] = []
 
     def retired(name: str, source: str) -> None:
@@ -228,12 +245,15 @@ def load(args: argparse.Namespace | None = None, environ: dict[str, str] | None 
             if setting is None:
                 raise ConfigError(f"config file {path}: unknown setting {key!r}")
             values[key] = setting.parse(raw, f"config file {path}")
+            sources[key] = f"config file {path}"
 
     for s in SETTINGS:
         if s.env in environ:
             values[s.name] = s.parse(environ[s.env], f"environment {s.env}")
+            sources[s.name] = f"environment {s.env}"
         if flags.get(s.name) is not None:
             values[s.name] = s.parse(flags[s.name], f"flag {s.flag}")
+            sources[s.name] = f"flag {s.flag}"
     for name in RETIRED:
         env = ENV_PREFIX + name.upper()
         if env in environ:
@@ -253,9 +273,58 @@ def load(args: argparse.Namespace | None = None, environ: dict[str, str] | None 
         values["runtime_dir"] = default_runtime_dir(environ)
     if values["api_token"] and len(values["api_token"]) < 16:
         raise ConfigError("api_token: use at least 16 characters")
+    def named(name: str) -> str:
+        return f"{name} (from {sources[name]})" if name in sources else name
+
+    for name in ("rate_limit", "rate_limit_global"):
+        parse_rate(values[name], named(name))
+    parse_origins(values["cors_origins"], named("cors_origins"))
     cfg = Config(values)
     cfg.ignored = tuple(ignored)
     return cfg
+
+
+@dataclass(frozen=True)
+class Rate:
+    """A token bucket: ``rate`` tokens per second, at most ``burst`` at once."""
+
+    rate: float
+    burst: int
+
+
+def parse_rate(text: str, name: str = "rate_limit") -> Rate | None:
+    """``"50/100"`` → ``Rate(50.0, 100)``; ``"50"`` → ``Rate(50.0, 50)``; empty → None (off)."""
+    if not text.strip():
+        return None
+    m = _RATE.match(text)
+    if not m:
+        raise ConfigError(f"{name}: {text!r} is not RATE/BURST (requests per second and requests at "
+                          "once, e.g. 50/100), or empty for off")
+    rate = float(m.group(1))
+    burst = int(m.group(2)) if m.group(2) is not None else max(1, math.ceil(rate))
+    if not 0 < rate <= RATE_MAX:
+        raise ConfigError(f"{name}: rate {m.group(1)} is out of range (allowed: above 0, at most "
+                          f"{RATE_MAX:g} requests per second)")
+    if not 1 <= burst <= BURST_MAX:
+        raise ConfigError(f"{name}: burst {burst} is out of range (allowed: 1–{BURST_MAX})")
+    return Rate(rate, burst)
+
+
+def parse_origins(text: str, name: str = "cors_origins") -> tuple[str, ...] | str | None:
+    """``cors_origins``: None (off), ``"*"`` (any origin), or the exact origins allowed."""
+    items = [item.strip() for item in text.split(",") if item.strip()]
+    if not items:
+        return None
+    if "*" in items:
+        if len(items) > 1:
+            raise ConfigError(f"{name}: * allows every origin; give it alone, or list exact origins")
+        return "*"
+    for item in items:
+        m = _ORIGIN.match(item)
+        if not m or (m.group(3) and not 0 < int(m.group(3)[1:]) < 65536):
+            raise ConfigError(f"{name}: {item!r} is not an origin: scheme://host[:port] with http or "
+                              "https, no path and no trailing slash (e.g. https://dashboard.example:8443)")
+    return tuple(dict.fromkeys(items))
 
 
 def default_runtime_dir(environ: dict[str, str] | os._Environ) -> str:

@@ -21,6 +21,11 @@ holds no defaults of its own: it maps the gateway's settings onto gunicorn's.
 - ``keepalive`` is longer than nginx's upstream ``keepalive_timeout`` (60 s),
   so gunicorn never closes an idle connection that nginx is about to reuse.
 - Proxy headers (``X-Forwarded-*``) are trusted only from ``forwarded_allow_ips``.
+- The access log is off unless ``access_log`` is set; then its lines are
+  rate-limited by :class:`app.accesslog.AccessLogger` and carry the request id.
+- Prometheus: the supervisor sets ``PROMETHEUS_MULTIPROC_DIR`` for gunicorn
+  (``app/metrics.py``); when a worker exits, :func:`child_exit` marks its
+  metric files dead, as prometheus_client's multiprocess mode prescribes.
 """
 
 from __future__ import annotations
@@ -51,13 +56,23 @@ proc_name = "sovd-gateway-http"
 
 loglevel = _cfg.log_level
 errorlog = "-"
-# One access line per request on stdout (the journal) unless the operator asked for less.
-accesslog = "-" if _cfg.log_level in ("debug", "info") else None
-access_log_format = '%(h)s "%(r)s" %(s)s %(B)s %(M)sms'
+# Access lines on stdout (the journal) only when asked for, and then at a bounded rate.
+logger_class = "app.accesslog.AccessLogger"
+accesslog = "-" if _cfg.access_log else None
+access_log_format = '%(h)s "%(r)s" %(s)s %(B)s %(M)sms request=%({x-request-id}o)s'
+
 
 # Request limits: the body limit itself is enforced by the app (413); these bound headers.
 limit_request_line = 8190
 limit_request_fields = 100
+
+
+def child_exit(server, worker):
+    """In the master, after a worker exited: its live gauges leave the Prometheus sums."""
+    if os.environ.get("PROMETHEUS_MULTIPROC_DIR"):
+        from prometheus_client import multiprocess
+
+        multiprocess.mark_process_dead(worker.pid)
 
 
 # The master arms its own parent-death signal (SIGTERM) against the supervisor: app/pdeathsig.py.

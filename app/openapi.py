@@ -215,7 +215,7 @@ SCHEMAS: dict[str, Any] = {
         ["name", "version", "api_base", "endpoints", "capabilities"], name=STR,
         version={"type": "string", "pattern": r"^\d+\.\d+\.\d+"}, api_base={"const": API_BASE},
         endpoints={"type": "array", "items": {"type": "string",
-                                              "pattern": f"^(GET|PUT|POST|DELETE) {API_BASE}/"}},
+                                              "pattern": f"^(GET|PUT|POST|DELETE) ({API_BASE}/|/metrics$)"}},
         capabilities={**_obj(["discovery", "data_access", "publishing"]),
                       "additionalProperties": {"type": "boolean"}},
     ),
@@ -242,6 +242,9 @@ ERRORS: dict[str, str] = {
             "(`x-medkit-cold-wait-cap-exceeded`, parameters `topic`, `cold_wait_cap`, `entity_id`, "
             "`topic_name`); retry after `Retry-After` seconds"),
     "504": "The ROS worker did not answer in time (`not-responding`)",
+    "429": ("Too many requests from this client, or from all clients together, while rate limiting is "
+            "on (`rate-limit-exceeded`, parameters `retry_after`, `limit`, `reset`, `scope`); retry after "
+            "`Retry-After` seconds"),
     "default": "Error (`internal-error`, or `vendor-error` with a `vendor_code`)",
 }
 GENERIC_ERROR = {
@@ -250,6 +253,16 @@ GENERIC_ERROR = {
         "Retry-After": {"description": "on a 503 worth retrying: seconds to wait", "required": False,
                         "schema": INT},
         "WWW-Authenticate": {"description": "on a 401", "required": False, "schema": STR},
+        "X-RateLimit-Limit": {"description": "while rate limiting is on (every answer of a limited "
+                              "route): the burst of the client's or the global token bucket, whichever "
+                              "is closer to empty", "required": False, "schema": INT},
+        "X-RateLimit-Remaining": {"description": "requests that bucket lets through now",
+                                  "required": False, "schema": INT},
+        "X-RateLimit-Reset": {"description": "Unix time at which that bucket is full again",
+                              "required": False, "schema": INT},
+        "X-Request-Id": {"description": "the request's id (every answer): the client's own when it "
+                         "sent a valid one (1–128 of `[A-Za-z0-9._-]`), else a new one",
+                         "required": False, "schema": STR},
     },
     "content": {"application/json": {"schema": ref("GenericError")}},
 }
@@ -265,12 +278,18 @@ def _ok(schema: str, description: str = "OK") -> dict[str, Any]:
 
 
 def _op(op_id: str, tag: str, summary: str, ok: dict | None, *errors: str | tuple[str, str],
-        **extra: Any) -> dict[str, Any]:
-    """One operation; ``errors`` are statuses (described from :data:`ERRORS`) or (status, description)."""
+        limited: bool = True, **extra: Any) -> dict[str, Any]:
+    """One operation; ``errors`` are statuses (described from :data:`ERRORS`) or (status, description).
+
+    ``limited``: the route is subject to rate limiting (everything but health and metrics), so
+    it documents 429.
+    """
     responses: dict[str, Any] = {"200": ok} if ok is not None else {}
     for err in errors:
         status, text = err if isinstance(err, tuple) else (err, ERRORS[err])
         responses[status] = _error(text)
+    if limited:
+        responses["429"] = _error(ERRORS["429"])
     responses["default"] = _error(ERRORS["default"])
     return {"operationId": op_id, "tags": [tag], "summary": summary, "responses": responses, **extra}
 
@@ -438,6 +457,16 @@ def _subscription_paths(collection: str) -> dict[str, Any]:
     }
 
 
+METRICS_OP = _op(
+    "getMetrics", "Server", "Prometheus metrics (text exposition format); beside the API, at /metrics",
+    {"description": "The gateway's metrics in Prometheus' text format: HTTP requests by route template, "
+                    "latency, streams, rate limiting (sovd_http_*); the ROS worker's counters "
+                    "(sovd_ros_*; sovd_ros_worker_up 0 while it does not answer); ROS-worker restarts "
+                    "(sovd_supervisor_*). Never rate-limited.",
+     "content": {"text/plain": {"schema": STR}}},
+    limited=False, servers=[{"url": "/", "description": "outside the API base: GET /metrics"}])
+
+
 @lru_cache(maxsize=1)
 def _document() -> dict[str, Any]:
     paths: dict[str, Any] = {
@@ -445,7 +474,8 @@ def _document() -> dict[str, Any]:
         "/version-info": {"get": _op("getVersionInfo", "Server", "SOVD version information",
                                      _ok("VersionInfo"))},
         "/health": {"get": _op("getHealth", "Server", "Liveness and ROS worker counters; always 200, "
-                                                      "never waits on ROS work", _ok("HealthStatus"))},
+                                                      "never waits on ROS work; never rate-limited",
+                               _ok("HealthStatus"), limited=False)},
         "/docs": {"get": _op("getDocs", "Server", "This OpenAPI document", DOC)},
     }
     for collection in COLLECTIONS:
@@ -454,6 +484,7 @@ def _document() -> dict[str, Any]:
     for collection in ("apps", "components", "functions"):
         paths.update(_subscription_paths(collection))
     paths.update(_docs_paths())
+    paths["/metrics"] = {"get": METRICS_OP}
     return {
         "openapi": "3.1.0",
         "info": {"title": "sovd-gateway", "version": "1.0.0", "x-sovd-version": SOVD_VERSION,
@@ -522,9 +553,10 @@ def _bind(op: dict[str, Any], id_name: str, data_ids: list[str] | tuple[str, ...
 
 
 def endpoint_list() -> list[str]:
-    """``"GET /api/v1/health"`` ... for every documented operation."""
+    """``"GET /api/v1/health"`` ... for every documented operation (``GET /metrics`` is outside the base)."""
     out = []
     for path, ops in _document()["paths"].items():
-        for method in ops:
-            out.append(f"{method.upper()} {API_BASE}{path}")
+        for method, op in ops.items():
+            base = op["servers"][0]["url"].rstrip("/") if op.get("servers") else API_BASE
+            out.append(f"{method.upper()} {base}{path}")
     return out

@@ -33,7 +33,7 @@ from flask import Flask, current_app
 from ipc.client import RosWorkerClient
 from ipc.errors import IpcError
 
-from . import entities
+from . import entities, requestid
 
 log = logging.getLogger("sovd.http.rosclient")
 
@@ -89,7 +89,9 @@ class RosClient:
 
     def call(self, cmd: str, args: dict[str, Any] | None = None, timeout: float | None = None,
              **kw: Any) -> dict[str, Any]:
-        return self.client.call(cmd, args, self.ipc_timeout if timeout is None else timeout, **kw)
+        """One command; inside an HTTP request its ``X-Request-Id`` goes along (``app/requestid.py``)."""
+        return self.client.call(cmd, args, self.ipc_timeout if timeout is None else timeout,
+                                request_id=requestid.current(), **kw)
 
     # ------------------------------------------------------------------ graph
 
@@ -162,14 +164,15 @@ class RosClient:
 
     # ------------------------------------------------------------------ stats
 
-    def stats(self) -> tuple[bool, dict[str, Any] | None]:
+    def stats(self, timeout: float = STATS_TIMEOUT_S) -> tuple[bool, dict[str, Any] | None]:
         """``(alive, stats)``: a fresh answer, or ``(False, last known answer or None)``.
 
         Uses a short deadline: ``stats`` is answered by the worker's IPC thread
         at once, so a worker that does not answer in time is not alive.
         """
         try:
-            answer = self.call("stats", timeout=STATS_TIMEOUT_S, connect_wait=STATS_CONNECT_WAIT_S)
+            answer = self.call("stats", timeout=timeout,
+                               connect_wait=min(STATS_CONNECT_WAIT_S, timeout))
         except IpcError:
             return False, self._last_stats
         self._last_stats = answer

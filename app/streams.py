@@ -49,7 +49,7 @@ from flask import Flask, current_app
 from ipc import events, protocol
 from ipc.errors import IpcError
 
-from . import rosclient, samples
+from . import metrics, rosclient, samples
 
 log = logging.getLogger("sovd.http.streams")
 
@@ -118,6 +118,7 @@ class Stream:
         if len(self.frames) >= STREAM_BUFFER:
             self.frames.popleft()
             self.hub.counters["frames_dropped"] += 1
+            self.hub.prom.frames_dropped.inc()
         self.frames.append(chunk)
         self.last_frame = time.monotonic()
         self.wake.set()
@@ -143,6 +144,7 @@ class Stream:
                 if self.frames:
                     chunk = self.frames.popleft()
                     hub.counters["frames_sent"] += 1
+                    hub.prom.frames_sent.inc()
                     stalled.start()
                     try:
                         yield chunk
@@ -182,6 +184,7 @@ class StreamHub:
         self.by_key: dict[bytes, set[Stream]] = {}
         self.by_id: dict[str, set[Stream]] = {}
         self.counters = {"open_streams": 0, "frames_sent": 0, "frames_dropped": 0}
+        self.prom = metrics.http()             # the same counts for Prometheus (app/metrics.py)
         self.connected = False
         self.heartbeat = 0.0
         self._ctx: zmq.Context | None = None
@@ -228,6 +231,7 @@ class StreamHub:
         self._add(stream)
         self.by_id.setdefault(stream.id, set()).add(stream)
         self.counters["open_streams"] += 1
+        self.prom.streams_open.inc()
         cached = self._last_payload.get((stream.key, stream.entity_id))
         if cached is not None and time.monotonic() - cached[0] < stream.period * 2:
             stream.push(cached[1])  # the latest value at once, not one interval later
@@ -243,6 +247,7 @@ class StreamHub:
             del self.by_id[stream.id]
         self._remove(stream)
         self.counters["open_streams"] -= 1
+        self.prom.streams_open.dec()
 
     def _add(self, stream: Stream) -> None:
         watchers = self.by_key.get(stream.key)

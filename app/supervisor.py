@@ -4,7 +4,9 @@ Lifecycle (``state``): ``starting`` → ``running`` → ``stopping`` → ``stopp
 
 starting
     take ``<runtime_dir>/supervisor.lock`` (one gateway per runtime dir), check
-    that the bind address is free, start the ROS worker (``sovd-rosworker``),
+    that the bind address is free, prepare the HTTP side's files
+    (``app/runfiles.py``: an empty metrics directory for gunicorn's
+    ``PROMETHEUS_MULTIPROC_DIR``, no stale rate-limit buckets), start the ROS worker (``sovd-rosworker``),
     wait until it answers ``ping`` (``WORKER_BOOT_TIMEOUT``), start gunicorn,
     wait until it answers HTTP on the bind address (``HTTP_BOOT_TIMEOUT``),
     then ``READY=1``.  Any child that dies here ends the service: a worker
@@ -55,6 +57,7 @@ from ipc import protocol
 from ipc.client import RosWorkerClient
 from ipc.errors import IpcError
 
+from . import runfiles
 from .children import RESTART_ENV, Child, bind_problem, gunicorn_argv, http_answers, rosworker_argv
 from .config import Config
 from .sdnotify import Notifier, child_env
@@ -102,6 +105,8 @@ class Supervisor:
         self._restarts: collections.deque[float] = collections.deque()
         self._restart_at: float | None = None
         self._restart_attempt = 0
+        self._worker_starts = 0
+        self._metrics_dir: str | None = None
         # HTTP side
         self._http_deadline = 0.0
         self._next_watchdog = 0.0
@@ -211,6 +216,11 @@ class Supervisor:
         if problem:
             log.error("cannot listen on %s: %s", cfg.bind, problem)
             return EXIT_FAILURE
+        try:
+            self._metrics_dir = runfiles.prepare(cfg.runtime_dir)
+        except OSError as exc:
+            log.error("cannot prepare %s: %s", runfiles.metrics_dir(cfg.runtime_dir), exc.strerror or exc)
+            return EXIT_CANNOT_BOOT
         self._status(f"starting ROS worker (runtime dir {cfg.runtime_dir})")
         self._start_worker()
         return None
@@ -239,7 +249,8 @@ class Supervisor:
 
     def _child_env(self) -> dict[str, str]:
         env = child_env(os.environ)
-        for key in ("SOVD_CONFIG", "LISTEN_FDS", "LISTEN_PID", "LISTEN_FDNAMES", "GUNICORN_FD"):
+        for key in ("SOVD_CONFIG", "LISTEN_FDS", "LISTEN_PID", "LISTEN_FDNAMES", "GUNICORN_FD",
+                    runfiles.MULTIPROC_ENV):
             env.pop(key, None)
         env.update(self.cfg.to_env())
         env["PYTHONUNBUFFERED"] = "1"
@@ -256,10 +267,19 @@ class Supervisor:
         self._degraded_since = None
         self._silent_reported = 0
         self._boot_deadline = time.monotonic() + WORKER_BOOT_TIMEOUT
+        self._worker_starts += 1
+        try:  # for the metrics: restarts, and when the running worker started
+            runfiles.write_supervisor_state(self.cfg.runtime_dir, self._worker_starts - 1, time.time(),
+                                            self.worker.pid)
+        except OSError as exc:
+            log.warning("cannot write %s: %s", runfiles.SUPERVISOR_STATE, exc.strerror or exc)
         log.info("ROS worker pid %d started", self.worker.pid)
 
     def _start_http(self) -> None:
-        self.http = Child("gunicorn", gunicorn_argv(), self._child_env(), signal.SIGTERM)
+        env = self._child_env()
+        if self._metrics_dir is not None:
+            env[runfiles.MULTIPROC_ENV] = self._metrics_dir  # before gunicorn imports prometheus_client
+        self.http = Child("gunicorn", gunicorn_argv(), env, signal.SIGTERM)
         self.http.start()
         self._http_deadline = time.monotonic() + HTTP_BOOT_TIMEOUT
         log.info("gunicorn pid %d started on %s", self.http.pid, self.cfg.bind)

@@ -17,8 +17,8 @@ from typing import Any
 
 from flask import Flask
 
+from . import clientaddr, cors, errors, metrics, ratelimit, requestid, rosclient, streams
 from . import config as settings
-from . import errors, rosclient, streams
 
 
 def create_app(test_config: dict[str, Any] | None = None) -> Flask:
@@ -40,6 +40,13 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
     app.url_map.converters["collection"] = common.CollectionConverter
     app.url_map.converters["data_id"] = common.DataIdConverter
 
+    # Order of the request hooks: the request id first (every answer carries it), then the
+    # timing, the real client behind the proxy, and the rate limit; CORS headers go on every answer.
+    requestid.init_app(app)
+    metrics.init_app(app)
+    clientaddr.init_app(app)
+    ratelimit.init_app(app)
+    cors.init_app(app)
     errors.init_app(app)
     rosclient.init_app(app)
     streams.init_app(app)

@@ -226,8 +226,11 @@ class RosWorkerClient:
         return pool
 
     def call(self, cmd: str, args: dict[str, Any] | None = None, timeout: float = 2.0,
-             connect_wait: float = CONNECT_WAIT) -> dict[str, Any]:
+             connect_wait: float = CONNECT_WAIT, request_id: str | None = None) -> dict[str, Any]:
         """Send one command and wait up to ``timeout`` seconds for its reply.
+
+        ``request_id`` (the HTTP request's ``X-Request-Id``, already valid) goes
+        into the envelope; the ROS worker tags that command's log lines with it.
 
         Returns the ``result`` map; raises :class:`IpcError` with code
         ``unavailable`` (no ROS worker connected, or it went away while we
@@ -244,7 +247,7 @@ class RosWorkerClient:
                            {"command": cmd, "timeout_s": timeout})
         broken = True  # unless the exchange ends as the protocol says: anything else closes the channel
         try:
-            result = self._exchange(channel, cmd, args, timeout, deadline, connect_wait)
+            result = self._exchange(channel, cmd, args, timeout, deadline, connect_wait, request_id)
             broken = False
             return result
         except _MalformedReply:
@@ -256,14 +259,15 @@ class RosWorkerClient:
             pool.release(channel, broken)
 
     def _exchange(self, channel: _Channel, cmd: str, args: dict[str, Any] | None, timeout: float,
-                  deadline: float, connect_wait: float) -> dict[str, Any]:
+                  deadline: float, connect_wait: float, request_id: str | None) -> dict[str, Any]:
         sock = channel.sock
         channel.forget_disconnects()
         rid = next(self._ids)
-        frame = protocol.pack({
-            "v": protocol.VERSION, "id": rid, "cmd": cmd, "args": args or {},
-            "deadline_ms": max(1, int(timeout * 1000)),
-        })
+        envelope = {"v": protocol.VERSION, "id": rid, "cmd": cmd, "args": args or {},
+                    "deadline_ms": max(1, int(timeout * 1000))}
+        if request_id is not None:
+            envelope["request_id"] = request_id
+        frame = protocol.pack(envelope)
         try:
             sock.send(frame, zmq.NOBLOCK)
         except zmq.Again:

@@ -2,18 +2,20 @@
 
 One request → one reply, each a single ZeroMQ frame of msgpack:
 
-    request: {"v": 1, "id": int, "cmd": str, "args": map, "deadline_ms": int}
+    request: {"v": 1, "id": int, "cmd": str, "args": map, "deadline_ms": int, "request_id"?: str}
     reply:   {"v": 1, "id": int, "ok": true,  "result": map}
            | {"v": 1, "id": int, "ok": false, "error": {code, message, status, params}}
 
 ``deadline_ms`` is the caller's remaining budget when it sent the request;
 the ROS worker does not start work whose budget has run out, and a cold
-sample never waits past it.
+sample never waits past it.  ``request_id`` (optional) is the HTTP request's
+``X-Request-Id``: the ROS worker puts it into the log lines of that command.
 """
 
 from __future__ import annotations
 
 import os
+import re
 from typing import Any
 
 import msgpack
@@ -25,6 +27,8 @@ LOCK_NAME = "rosworker.lock"
 MAX_FRAME = 4 * 1024 * 1024          # requests larger than this are dropped unread
 MAX_REPLY_FRAME = 256 * 1024 * 1024  # a reply may carry a large sample
 MAX_TOPIC_LEN = 1024
+# An HTTP request's id (X-Request-Id) as it may cross the wire and reach a log line.
+REQUEST_ID = re.compile(r"^[A-Za-z0-9._-]{1,128}$")
 
 COMMANDS = (
     "ping", "stats", "graph", "sample", "subscribe", "evict", "publish", "type_info", "pool",
@@ -47,6 +51,11 @@ def control_endpoint(work_endpoint: str) -> str:
     """The control socket beside a work socket (``.../rosworker.sock`` → ``.../rosworker-ctl.sock``)."""
     head, sep, _ = work_endpoint.rpartition("/")
     return f"{head}{sep}{CONTROL_SOCKET_NAME}" if sep else work_endpoint + "-ctl"
+
+
+def valid_request_id(value: Any) -> bool:
+    """1–128 characters of ``[A-Za-z0-9._-]``: safe in a log line, a header and a grep."""
+    return isinstance(value, str) and REQUEST_ID.fullmatch(value) is not None
 
 
 def pack(message: dict[str, Any]) -> bytes:

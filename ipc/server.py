@@ -114,6 +114,7 @@ class Request:
     cmd: str
     args: dict
     budget_ms: int
+    request_id: str | None = None  # the HTTP request's X-Request-Id, for log lines
 
 
 def reply_frame(rid: int, result: dict[str, Any] | None = None, error: IpcError | None = None) -> bytes:
@@ -168,7 +169,10 @@ def _decode(identity: bytes, rid: int, message: dict) -> Request:
         raise IpcError("bad-request", "args: expected a map")
     if isinstance(budget, bool) or not isinstance(budget, int) or not (0 < budget <= 600000):
         raise IpcError("bad-request", "deadline_ms: expected an integer from 1 to 600000")
-    return Request(identity, rid, cmd, args, budget)
+    request_id = message.get("request_id")
+    if request_id is not None and not protocol.valid_request_id(request_id):
+        raise IpcError("bad-request", "request_id: expected 1 to 128 characters of A-Z a-z 0-9 . _ -")
+    return Request(identity, rid, cmd, args, budget, request_id)
 
 
 def _send(router: zmq.Socket, identity: bytes, frame: bytes) -> None:

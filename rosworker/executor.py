@@ -47,6 +47,7 @@ from ipc import protocol
 from ipc.errors import IpcError
 from ipc.server import Request, bind_router, read_requests, reply_frame
 
+from .requestlog import bound
 from .stats import Stats
 
 log = logging.getLogger("sovd.rosworker.executor")
@@ -55,19 +56,28 @@ IDLE_WAIT_CAP = 1.0   # seconds: the loop wakes at least this often
 COLD_POLL = 0.002     # seconds between looks at cold subscriptions while somebody waits on one
 CLOSE_GRACE = 0.25    # seconds the socket stays open after the last replies (see linger())
 ERROR_LOG_EVERY = 10.0  # seconds: one traceback per place and period, the rest are counted
+SLOW_COMMAND = 0.5      # seconds from receipt to answer past which a command is logged (info)
+SLOW_LOG_PER_S = 20     # at most this many such lines per second; the rest are counted only
 
 
 class Task:
-    """One queued command; ``reply``/``fail`` may be called once, on the ROS thread."""
+    """One queued command; ``reply``/``fail`` may be called once, on the ROS thread.
 
-    __slots__ = ("cmd", "args", "identity", "rid", "deadline", "answered", "_executor")
+    ``request_id`` is the HTTP request's id when the HTTP side sent one: log
+    lines written while the task runs or is answered carry it (``requestlog.py``).
+    """
 
-    def __init__(self, executor: RosExecutor, request: Request, deadline: float):
+    __slots__ = ("cmd", "args", "identity", "rid", "deadline", "received", "request_id", "answered",
+                 "_executor")
+
+    def __init__(self, executor: RosExecutor, request: Request, deadline: float, received: float):
         self.cmd = request.cmd
         self.args = request.args
         self.identity = request.identity
         self.rid = request.rid
         self.deadline = deadline
+        self.received = received
+        self.request_id = request.request_id
         self.answered = False
         self._executor = executor
 
@@ -115,6 +125,8 @@ class RosExecutor:
         self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
         self._last_reply = 0.0
         self._error_logged: dict[str, float] = {}
+        self._slow_second = 0   # the second (monotonic) whose slow-command lines are counted
+        self._slow_logged = 0
         self.handlers: dict[str, Callable[[Task], None]] = {}
         # Set by the pool: entries that callers wait on, and what to do with one.
         self.cold_entries: Callable[[], list] = lambda: []
@@ -163,20 +175,44 @@ class RosExecutor:
             raise IpcError("backpressure",
                            f"The ROS worker's queue is full ({self.max_queue_depth} pending); retry shortly",
                            {"max_queue_depth": self.max_queue_depth})
-        self._queue.append(Task(self, request, time.monotonic() + request.budget_ms / 1000))
+        now = time.monotonic()
+        self._queue.append(Task(self, request, now + request.budget_ms / 1000, now))
         depth = len(self._queue)
         self.stats.queue_depth = depth
         if depth > self.stats.queue_max_depth_observed:
             self.stats.queue_max_depth_observed = depth
 
     def _send(self, task: Task, message: dict) -> None:
-        try:
-            frame = protocol.pack(message)
-        except Exception:
-            log.exception("could not encode the reply to %s", task.cmd)
-            frame = protocol.pack({"v": protocol.VERSION, "id": task.rid, "ok": False,
-                                   "error": IpcError("internal", "reply could not be encoded").to_wire()})
-        self._send_frame(task.identity, frame)
+        with bound(task.request_id):
+            try:
+                frame = protocol.pack(message)
+            except Exception:
+                log.exception("could not encode the reply to %s", task.cmd)
+                frame = protocol.pack({"v": protocol.VERSION, "id": task.rid, "ok": False,
+                                       "error": IpcError("internal", "reply could not be encoded").to_wire()})
+            self._send_frame(task.identity, frame)
+            took = self._last_reply - task.received
+            if took >= SLOW_COMMAND:
+                self._log_slow(task, message, took)
+
+    def _log_slow(self, task: Task, message: dict, took: float) -> None:
+        """One info line per command answered after ``SLOW_COMMAND`` s (at most ``SLOW_LOG_PER_S``/s)."""
+        second = int(self._last_reply)
+        if second != self._slow_second:
+            self._slow_second, self._slow_logged = second, 0
+        self._slow_logged += 1
+        if self._slow_logged > SLOW_LOG_PER_S:
+            return
+        topic = task.args.get("topic") if isinstance(task.args, dict) else None
+        what = f"{task.cmd} {topic}" if isinstance(topic, str) else task.cmd
+        if message.get("ok"):
+            result = message.get("result") or {}
+            outcome = result.get("status", "ok") if isinstance(result, dict) else "ok"
+            if isinstance(result, dict) and result.get("reason"):
+                outcome += f" ({result['reason']})"
+        else:
+            outcome = f"error {(message.get('error') or {}).get('code')}"
+        log.info("slow command: %s answered after %d ms: %s", what[:300], int(took * 1000), outcome)
 
     def _send_frame(self, identity: bytes, frame: bytes) -> None:
         self._last_reply = time.monotonic()
@@ -227,6 +263,10 @@ class RosExecutor:
                 self.stats.task_finished(started, ok)
 
     def _run_task(self, task: Task) -> None:
+        with bound(task.request_id):
+            self._run_bound(task)
+
+    def _run_bound(self, task: Task) -> None:
         started = self.stats.task_started()
         ok = True
         try:

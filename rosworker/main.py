@@ -85,8 +85,13 @@ def main(argv: list[str] | None = None) -> int:
     except config_mod.ConfigError as exc:
         print(f"sovd-rosworker: {exc}", file=sys.stderr)
         return EXIT_CONFIG
+    from .requestlog import RequestIdFilter
+
     logging.basicConfig(level=cfg.log_level.upper(), stream=sys.stderr,
-                        format="%(asctime)s rosworker[%(process)d] %(levelname)s %(name)s: %(message)s")
+                        format="%(asctime)s rosworker[%(process)d] %(levelname)s %(name)s: "
+                               "%(message)s%(request_tag)s")
+    for handler in logging.getLogger().handlers:
+        handler.addFilter(RequestIdFilter())  # " [request <id>]" on lines of an HTTP request's command
     return Worker(cfg, restart=restart_attempt()).run()
 
 

@@ -40,7 +40,10 @@ def _template_regex(template: str) -> re.Pattern:
 
 
 def operation(doc, method: str, path: str) -> tuple[str, dict]:
-    rel = path.split("?", 1)[0][len("/api/v1"):]
+    path = path.split("?", 1)[0]
+    # Paths under the API base are relative to it; an operation with a server of its own
+    # (GET /metrics) is matched by its whole path.
+    rel = path[len("/api/v1"):] if path == "/api/v1" or path.startswith("/api/v1/") else path
     matches = [t for t in doc["paths"] if _template_regex(t).fullmatch(rel)]
     # OpenAPI: concrete paths match before templated ones (`/apps/docs` before `/apps/{app_id}`).
     fewest = min((t.count("{") for t in matches), default=0)
@@ -67,6 +70,9 @@ def check(doc, method: str, path: str, response) -> str:
     spec = resolve(doc, documented)
     if "content" not in spec:  # 204: no body at all
         assert response.data == b"", f"{key} {status} has a body"
+        return key
+    if "application/json" not in spec["content"]:  # text (the metrics)
+        assert any(response.headers["Content-Type"].startswith(kind) for kind in spec["content"]), key
         return key
     schema = spec["content"]["application/json"]["schema"]
     assert response.headers["Content-Type"] == "application/json"
@@ -128,7 +134,7 @@ def test_every_route_answers_per_the_document(doc):
         auth = {"Authorization": f"Bearer {TOKEN}"}
         requests: list[tuple[str, str, dict]] = [
             ("GET", "/api/v1/", {}), ("GET", "/api/v1/version-info", {}), ("GET", "/api/v1/health", {}),
-            ("GET", "/api/v1/docs", {}),
+            ("GET", "/api/v1/docs", {}), ("GET", "/metrics", {}),
         ]
         for collection, relation in RELATIONS:
             base = f"/api/v1/{collection}"
@@ -226,3 +232,19 @@ def test_every_route_answers_per_the_document(doc):
         assert seen[f"GET /{collection}/{param}/{relation}"] == expected
     assert seen["GET /apps/{app_id}/data/docs"] == {200}
     assert seen["GET /areas/{area_id}/docs"] == {404}
+
+
+def test_rate_limits_and_metrics_are_documented(doc):
+    """429 on every rate-limited operation (all but health and metrics); GET /metrics beside the base."""
+    for path, ops in doc["paths"].items():
+        for method, op in ops.items():
+            if op["operationId"] in ("getHealth", "getMetrics"):
+                assert "429" not in op["responses"], op["operationId"]
+            else:
+                assert op["responses"]["429"]["$ref"] == "#/components/responses/GenericError", (method, path)
+    metrics = doc["paths"]["/metrics"]["get"]
+    assert metrics["servers"] == [{"url": "/", "description": metrics["servers"][0]["description"]}]
+    assert "text/plain" in metrics["responses"]["200"]["content"]
+    headers = doc["components"]["responses"]["GenericError"]["headers"]
+    assert {"Retry-After", "X-RateLimit-Limit", "X-RateLimit-Remaining", "X-RateLimit-Reset"} <= set(headers)
+    assert "GET /metrics" in openapi.endpoint_list()

@@ -94,3 +94,37 @@ def test_worker_connections_replaces_threads_which_is_ignored_from_every_source(
     assert all("worker_connections" in note for note in cfg.ignored)
     assert "SOVD_THREADS" not in cfg.to_env()
     assert load().ignored == ()
+
+
+def test_fleet_settings_are_off_by_default_and_work_from_every_source(tmp_path):
+    cfg = load()
+    assert (cfg.cors_origins, cfg.rate_limit, cfg.rate_limit_global, cfg.access_log) == ("", "", "", False)
+    assert config.parse_rate(cfg.rate_limit) is None and config.parse_origins(cfg.cors_origins) is None
+    cfg = load(["--rate-limit", "50/100", "--access-log"], {"SOVD_RATE_LIMIT_GLOBAL": "200/400"},
+               'cors_origins = "https://ui.example:8443, http://localhost:3000"\n', tmp_path)
+    assert config.parse_rate(cfg.rate_limit) == config.Rate(50.0, 100)
+    assert config.parse_rate(cfg.rate_limit_global) == config.Rate(200.0, 400)
+    assert config.parse_rate("2.5") == config.Rate(2.5, 3)  # no burst: the rate, rounded up
+    assert config.parse_origins(cfg.cors_origins) == ("https://ui.example:8443", "http://localhost:3000")
+    assert config.parse_origins("*") == "*"
+    assert cfg.access_log is True
+    assert config.load(None, cfg.to_env()) == cfg
+
+
+@pytest.mark.parametrize("argv, env, needle", [
+    (["--rate-limit", "fast"], {}, "rate_limit (from flag --rate-limit): 'fast' is not RATE/BURST"),
+    ([], {"SOVD_RATE_LIMIT_GLOBAL": "0/10"}, "rate_limit_global (from environment SOVD_RATE_LIMIT_GLOBAL): "
+                                              "rate 0 is out of range"),
+    (["--rate-limit", "5/0"], {}, "burst 0 is out of range"),
+    ([], {"SOVD_RATE_LIMIT": "-5/10"}, "is not RATE/BURST"),
+    (["--cors-origins", "https://ui.example/"], {}, "cors_origins (from flag --cors-origins): "
+                                                     "'https://ui.example/' is not an origin"),
+    (["--cors-origins", "*.example.com"], {}, "is not an origin"),
+    (["--cors-origins", "*,https://ui.example"], {}, "give it alone"),
+    (["--cors-origins", "ftp://ui.example"], {}, "with http or https"),
+    ([], {"SOVD_ACCESS_LOG": "sometimes"}, "is not a valid bool"),
+])
+def test_fleet_settings_refuse_bad_values_naming_the_source(argv, env, needle):
+    with pytest.raises(config.ConfigError) as info:
+        load(argv, env)
+    assert needle in str(info.value)

@@ -200,3 +200,13 @@ def test_event_streams_pass_through_nginx_frame_by_frame(stack):
     assert stream.arrivals[5] - stream.arrivals[0] > 0.5, stream.arrivals
     assert requests.delete(f"{nginx.url}/api/v1/components/{comp}/cyclic-subscriptions/{sub['id']}",
                            timeout=10).status_code == 204
+
+
+def test_metrics_are_not_exposed_through_nginx_by_default(stack):
+    gw, nginx = stack
+    r = requests.get(nginx.url + "/metrics", timeout=10)
+    assert r.status_code == 403
+    assert r.json()["error_code"] == "forbidden"
+    # The gateway itself, on its loopback bind, serves them.
+    direct = requests.get(gw.url + "/metrics", timeout=10)
+    assert direct.status_code == 200 and "sovd_ros_worker_up 1.0" in direct.text

@@ -233,6 +233,11 @@ def test_hostile_ipc_frames_get_an_error_or_are_dropped_and_the_worker_keeps_ser
             assert reply["error"]["code"] == code, reply
         bad_deadline = {"v": 1, "id": 11, "cmd": "pool", "args": {}, "deadline_ms": -5}
         assert ask([msgpack.packb(bad_deadline)], expect_reply=True)["error"]["code"] == "bad-request"
+        for bad_id in ("", "x" * 129, "a b", "line\nbreak", 7, ["x"]):  # request_id: log-safe text only
+            request = {"v": 1, "id": 12, "cmd": "pool", "args": {}, "deadline_ms": 1000, "request_id": bad_id}
+            assert ask([msgpack.packb(request)], expect_reply=True)["error"]["code"] == "bad-request"
+        good = {"v": 1, "id": 13, "cmd": "pool", "args": {}, "deadline_ms": 1000, "request_id": "a-Z_0.9"}
+        assert ask([msgpack.packb(good)], expect_reply=True)["ok"] is True
         # An oversized frame: zmq drops the connection of a peer that sends one.
         big = ctx.socket(zmq.DEALER)
         big.setsockopt(zmq.LINGER, 0)

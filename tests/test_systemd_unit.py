@@ -151,3 +151,14 @@ def test_verify_would_catch_a_mistake(tmp_path):
     copy.write_text(text.replace("ProtectHome=yes", "ProtectHomme=yes"))
     r = subprocess.run([tool, "verify", str(copy)], capture_output=True, text=True, timeout=60)
     assert "ProtectHomme" in r.stdout + r.stderr
+
+
+def test_the_prometheus_example_scrapes_the_default_bind_at_metrics():
+    import yaml
+
+    example = yaml.safe_load((REPO / "systemd" / "prometheus-sovd-gateway.yml").read_text())
+    job = example["scrape_configs"][0]
+    assert job["metrics_path"] == "/metrics"
+    assert job["static_configs"][0]["targets"] == [config.BY_NAME["bind"].default]
+    # A scrape answers within ipc_timeout even with the ROS worker down: the timeout leaves room.
+    assert float(job["scrape_timeout"].rstrip("s")) > config.BY_NAME["ipc_timeout"].default

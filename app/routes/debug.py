@@ -15,6 +15,8 @@ Under ``/api/v1/x-sovd-debug/``, left out of the OpenAPI document:
   bench``.  503 ``x-medkit-ros-worker-unavailable`` when no echo process runs.
 - ``GET worker``: ``{pid, green}``: which HTTP worker answered, and whether
   its ZeroMQ client is ``zmq.green``'s.
+- ``GET fail``: an unhandled error on purpose: the contract's bare 500 for the
+  client, an error line with its traceback (and the request's id) in the log.
 
 Each runs in the request's greenlet (gevent worker) or thread (test client).
 """
@@ -93,3 +95,8 @@ def echo():
 @bp.get("/worker")
 def worker():
     return json_response({"pid": os.getpid(), "green": green()})
+
+
+@bp.get("/fail")
+def fail():
+    raise RuntimeError("x-sovd-debug/fail: a deliberate failure")

@@ -49,7 +49,7 @@ def scaled(short: Any, long: Any) -> Any:
 ERROR_CODES = {
     "invalid-request", "invalid-parameter", "entity-not-found", "resource-not-found",
     "internal-error", "not-implemented", "service-unavailable", "not-responding", "vendor-error",
-    "unauthorized", "forbidden", "payload-too-large",
+    "unauthorized", "forbidden", "payload-too-large", "rate-limit-exceeded",
 }
 # vendor_code -> the HTTP status it travels with (ipc/errors.py and rest-contract.md)
 VENDOR_CODES = {
@@ -65,6 +65,11 @@ VENDOR_CODES = {
     "x-medkit-unsupported-protocol": 400,
     "x-medkit-subscribe-failed": 500,
     "x-medkit-publish-failed": 500,
+    # cyclic subscriptions' refusals (app/routes/subscriptions.py)
+    "x-medkit-invalid-resource-uri": 400,
+    "x-medkit-entity-mismatch": 400,
+    "x-medkit-collection-not-supported": 400,
+    "x-medkit-unsupported-protocol": 400,
 }
 CLIENT_TIMEOUT = 20.0  # seconds, per socket operation; far above any deadline of the gateway
 

@@ -10,6 +10,7 @@ the commands of ``ipc/PROTOCOL.md`` from canned data, in a thread:
     fw.silent.add("sample")          # never answer samples (timeouts)
     fw.errors["publish"] = IpcError("invalid-data", "...")
     fw.requests                      # [(cmd, args, deadline_ms), ...] as received
+    fw.envelopes                     # the whole request maps, as received
     fw.stop()
 
 A reply can be a dict, an :class:`IpcError`, or a callable ``args -> dict``.
@@ -95,6 +96,7 @@ class FakeWorker:
         self.silent: set[str] = set()
         self.delays: dict[str, float] = {}
         self.requests: list[tuple[str, dict[str, Any], int]] = []
+        self.envelopes: list[dict[str, Any]] = []
         self.subscriptions: dict[str, dict[str, Any]] = {}
         self.apps: list[Any] = []  # Flask apps made by make_app(self): closed with the worker
         self._lock = threading.Lock()
@@ -187,6 +189,7 @@ class FakeWorker:
         cmd, args, rid = msg.get("cmd"), msg.get("args") or {}, msg.get("id")
         with self._lock:
             self.requests.append((cmd, args, msg.get("deadline_ms")))
+            self.envelopes.append(msg)
             if cmd in self.silent:
                 return None
             try:
