@@ -59,17 +59,13 @@ VENDOR_CODES = {
     "x-medkit-ros-worker-backpressure": 503,
     "x-medkit-pool-busy": 503,
     "x-medkit-message-undecodable": 502,
+    # cyclic subscriptions' refusals (app/routes/subscriptions.py)
     "x-medkit-invalid-resource-uri": 400,
     "x-medkit-entity-mismatch": 400,
     "x-medkit-collection-not-supported": 400,
     "x-medkit-unsupported-protocol": 400,
     "x-medkit-subscribe-failed": 500,
     "x-medkit-publish-failed": 500,
-    # cyclic subscriptions' refusals (app/routes/subscriptions.py)
-    "x-medkit-invalid-resource-uri": 400,
-    "x-medkit-entity-mismatch": 400,
-    "x-medkit-collection-not-supported": 400,
-    "x-medkit-unsupported-protocol": 400,
 }
 CLIENT_TIMEOUT = 20.0  # seconds, per socket operation; far above any deadline of the gateway
 
