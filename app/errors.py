@@ -83,8 +83,26 @@ def error_response(err: ApiError) -> Response:
     headers = dict(err.headers)
     if err.retry_after is not None:
         headers["Retry-After"] = str(err.retry_after)
-    return current_app.response_class(orjson.dumps(err.to_dict()), status=err.status,
-                                      mimetype="application/json", headers=headers)
+    body = err.to_dict()
+    try:
+        text = orjson.dumps(body)
+    except (TypeError, orjson.JSONEncodeError):  # a parameter echoes what JSON cannot carry (2**70)
+        text = orjson.dumps(_printable(body))
+    return current_app.response_class(text, status=err.status, mimetype="application/json",
+                                      headers=headers)
+
+
+def _printable(value: Any) -> Any:
+    """``value`` with whatever orjson refuses (integers beyond 64 bits ...) turned into strings."""
+    if isinstance(value, dict):
+        return {str(k): _printable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_printable(v) for v in value]
+    if value is None or isinstance(value, (bool, float, str)):
+        return value
+    if isinstance(value, int) and -(2**63) <= value < 2**64:
+        return value
+    return str(value)[:100]
 
 
 def _handle_api_error(err: ApiError) -> Response:

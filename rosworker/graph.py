@@ -93,8 +93,10 @@ class GraphMonitor:
                 pubs = self.node.get_publisher_names_and_types_by_node(name, namespace)
                 subs = self.node.get_subscriber_names_and_types_by_node(name, namespace)
             except Exception:  # the node left between the two calls, or is half discovered
+                # Listed without its topics for now (an app that is running must never
+                # answer 404); the snapshot is not kept, so the next request asks again.
                 complete = False
-                continue
+                pubs, subs = [], []
             if (name, namespace) == self.own:
                 own_pubs.update(t for t, _ in pubs)
                 own_subs.update(t for t, _ in subs)

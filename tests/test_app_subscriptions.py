@@ -174,6 +174,16 @@ def test_list_get_update_delete(client):
     error_of(client.get(f"{BASE}/{sub['id']}"), 404, "resource-not-found")
 
 
+def test_numbers_json_can_hold_but_orjson_cannot_write_are_still_answered(client):
+    """A duration of -2**70 is refused with a 400 that echoes it, not a 500 from writing it."""
+    for path, method in ((BASE, "post"), (BASE + "/sub_0000000000000001", "put")):
+        r = getattr(client, method)(path, data=b'{"interval": "fast", "resource": "x", '
+                                              b'"duration": -1180591620717411303424}',
+                                    content_type="application/json")
+        doc = error_of(r, 400, "invalid-parameter")
+        assert doc["parameters"]["value"] == "-1180591620717411303424"
+
+
 def test_the_subscription_cap_answers_503_with_retry_after(client, fw):
     fw.errors["sub_create"] = IpcError("subscriptions-full", "The gateway already holds 1000 cyclic "
                                        "subscriptions (max_subscriptions); delete one or retry later",
@@ -192,7 +202,8 @@ JSON = st.recursive(st.none() | st.booleans() | st.integers() | st.floats(allow_
 @given(resource=st.one_of(st.text(max_size=200), st.builds(lambda tail: "/api/v1/apps/temp_sensor/" + tail,
                                                             st.text(max_size=100)), JSON),
        interval=st.one_of(st.sampled_from(["fast", "normal", "slow"]), JSON),
-       duration=st.one_of(st.integers(-10, 5000), JSON), protocol=st.one_of(st.just("sse"), JSON))
+       duration=st.one_of(st.integers(-10, 5000), st.integers(-2**80, 2**80), JSON),
+       protocol=st.one_of(st.just("sse"), JSON))
 def test_hostile_bodies_get_the_contracts_answers(client, fw, resource, interval, duration, protocol):
     r = client.post(BASE, json={"resource": resource, "interval": interval, "duration": duration,
                                 "protocol": protocol})

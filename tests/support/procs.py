@@ -51,11 +51,15 @@ def private_ros_domain() -> int:
 
     Call it before anything imports rclpy.  A process started by one that has
     already claimed a domain (``SOVD_TEST_DOMAIN_CLAIMED`` in its environment:
-    a bench inside the smoke test) keeps its parent's.
+    a bench inside the smoke test) keeps its parent's.  A pytest-xdist worker
+    is a test session of its own: it claims its own domain rather than share
+    the one its controller claimed.
     """
-    if "SOVD_TEST_DOMAIN_CLAIMED" not in os.environ:
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    if "SOVD_TEST_DOMAIN_CLAIMED" not in os.environ or os.environ.get("SOVD_TEST_DOMAIN_SESSION") != worker:
         os.environ["ROS_DOMAIN_ID"] = str(claim_domain())
         os.environ["SOVD_TEST_DOMAIN_CLAIMED"] = "1"
+        os.environ["SOVD_TEST_DOMAIN_SESSION"] = worker
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     os.environ.pop("ROS_STATIC_PEERS", None)
     os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")

@@ -7,7 +7,8 @@
 // first MAX_ITEMS items, long strings their first MAX_TEXT characters.
 //
 // Floats that JSON cannot carry arrive as the strings "NaN", "Infinity", "-Infinity" (or as null);
-// in a field whose schema says "number" they are shown, and plotted, as the numbers they stand for.
+// in a field whose schema says "number" (or number-or-those-strings) they are shown, and plotted, as
+// the numbers they stand for.
 
 import { h } from "./dom.js";
 
@@ -17,10 +18,17 @@ const OPEN_DEPTH = 4;        // containers shallower than this start open...
 const OPEN_ARRAY_MAX = 12;   // ...arrays only when they are this short
 const NON_FINITE = { NaN: NaN, Infinity: Infinity, "-Infinity": -Infinity };
 
+/** Whether `schema` describes a float: "number", or number-or-"NaN"/"Infinity"/"-Infinity". */
+export function isNumberSchema(schema) {
+  if (!schema) return false;
+  if (schema.type === "number") return true;
+  return Array.isArray(schema.anyOf) && schema.anyOf.some((s) => s && s.type === "number");
+}
+
 /** The number a leaf stands for, or undefined when it is not numeric. */
 export function numericValue(value, schema) {
   if (typeof value === "number") return value;
-  if (schema && schema.type === "number") {
+  if (isNumberSchema(schema)) {
     if (typeof value === "string" && value in NON_FINITE) return NON_FINITE[value];
     if (value === null) return NaN;
   }

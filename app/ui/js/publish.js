@@ -10,6 +10,7 @@
 
 import { ApiError, request } from "./api.js";
 import { h } from "./dom.js";
+import { isNumberSchema } from "./jsontree.js";
 
 let token = "";  // in memory for the life of the page, shared by every item's form
 
@@ -20,7 +21,7 @@ function kindOf(value, schema) {
   if (Array.isArray(value) || (schema && schema.type === "array")) return "json";
   if (value !== null && typeof value === "object") return "object";
   if (typeof value === "boolean") return "bool";
-  if (typeof value === "number" || (schema && (schema.type === "number" || schema.type === "integer"))) return "number";
+  if (typeof value === "number" || isNumberSchema(schema) || (schema && schema.type === "integer")) return "number";
   if (typeof value === "string") return "string";
   return "json";
 }
