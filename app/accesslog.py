@@ -23,7 +23,7 @@ import time
 
 from gunicorn.glogging import Logger
 
-from . import config as settings
+from ipc import settings
 
 SUMMARY_EVERY = 10.0  # seconds between "suppressed" summaries
 

@@ -4,7 +4,7 @@ A :class:`Child` runs in its own process group (Ctrl-C in a terminal reaches
 only the supervisor, which stops the children in order) with a parent-death
 signal, so a supervisor killed outright does not leave it behind.  Nothing
 runs between fork and exec: the child arms that signal itself, from its
-environment (``app/pdeathsig.py``).
+environment (``ipc/pdeathsig.py``).
 """
 
 from __future__ import annotations
@@ -17,13 +17,13 @@ import socket
 import subprocess
 import sys
 
-from . import pdeathsig
+from ipc import pdeathsig
 
 
 class Child:
     """One child process in its own process group, killed if the supervisor dies.
 
-    ``death_signal`` is what the child arms against the supervisor (``app/pdeathsig.py``);
+    ``death_signal`` is what the child arms against the supervisor (``ipc/pdeathsig.py``);
     the child's program must call ``pdeathsig.arm()`` first thing.
     """
 
@@ -113,11 +113,6 @@ def http_answers(bind: str, timeout: float = 2.0) -> bool:
         return False
     finally:
         conn.close()
-
-
-# Set by the supervisor for a restarted ROS worker: the attempt number (absent at the first boot).
-# A restarted worker waits a while for the runtime dir's lock (its predecessor may still be dying).
-RESTART_ENV = "SOVD_WORKER_RESTART"
 
 
 def rosworker_argv(runtime_dir: str) -> list[str]:

@@ -1,6 +1,6 @@
 """CORS for browser tools served from other origins (flask-cors), off unless ``cors_origins`` is set.
 
-``cors_origins`` (``app/config.py``) is a comma-separated list of exact
+``cors_origins`` (``ipc/settings.py``) is a comma-separated list of exact
 origins (``https://dashboard.example:8443``: scheme, host and port, compared
 as a whole, never as a prefix or pattern), or ``*`` for any origin.  With a
 list, an allowed origin is echoed in ``Access-Control-Allow-Origin`` with
@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from flask import Flask
 
-from . import config as settings
+from ipc import settings
 
 METHODS = ["GET", "PUT", "POST", "DELETE"]
 ALLOW_HEADERS = ["Authorization", "Content-Type"]

@@ -34,7 +34,7 @@ Signal handlers only record the signal; ``signal.set_wakeup_fd`` wakes the
 main loop, which acts.  Each child runs in its own process group (Ctrl-C in a
 terminal reaches only the supervisor, which stops them in order) with a
 parent-death signal, so a supervisor killed outright does not leave them
-behind; each child arms it itself after exec (``app/pdeathsig.py``), as no
+behind; each child arms it itself after exec (``ipc/pdeathsig.py``), as no
 code may run between fork and exec in a process with threads.
 
 Before fork / after fork: ``Supervisor.__init__`` touches nothing
@@ -56,10 +56,10 @@ import time
 from ipc import protocol
 from ipc.client import RosWorkerClient
 from ipc.errors import IpcError
+from ipc.settings import RESTART_ENV, Config
 
 from . import runfiles
-from .children import RESTART_ENV, Child, bind_problem, gunicorn_argv, http_answers, rosworker_argv
-from .config import Config
+from .children import Child, bind_problem, gunicorn_argv, http_answers, rosworker_argv
 from .sdnotify import Notifier, child_env
 
 log = logging.getLogger("sovd.supervisor")

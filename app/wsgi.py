@@ -3,7 +3,7 @@
 Nothing happens at import time.  ``create_app`` runs in each HTTP worker
 after gunicorn forked it; the ROS-worker client it sets up opens its ZeroMQ
 context only on first use (``app/rosclient.py``).  Settings come from
-``app.config.load()``: the supervisor hands them to gunicorn's workers as
+``ipc.settings.load()``: the supervisor hands them to gunicorn's workers as
 ``SOVD_*`` environment variables.
 
 ``test_config`` overrides settings by their name (``runtime_dir``,
@@ -17,8 +17,9 @@ from typing import Any
 
 from flask import Flask
 
+from ipc import settings
+
 from . import clientaddr, cors, errors, metrics, ratelimit, requestid, rosclient, streams
-from . import config as settings
 
 
 def create_app(test_config: dict[str, Any] | None = None) -> Flask:

@@ -78,7 +78,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def default_endpoint(environ=os.environ) -> str:
-    from app.config import default_runtime_dir
+    from ipc.settings import default_runtime_dir
 
     return protocol.endpoint(environ.get("SOVD_RUNTIME_DIR") or default_runtime_dir(environ))
 

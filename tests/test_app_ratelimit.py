@@ -11,9 +11,9 @@ import os
 
 import pytest
 
-from app import config as settings
 from app import openapi, ratelimit
 from app.clientaddr import Trusted, client_address
+from ipc import settings
 from tests.support.fakeworker import ROBOT, FakeWorker, make_app
 from tests.test_app_openapi import check
 

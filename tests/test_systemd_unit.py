@@ -11,7 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from app import cli, config, supervisor
+from app import cli, supervisor
+from ipc import settings as config
 from tests.support.procs import REPO
 
 UNIT = REPO / "systemd" / "sovd-gateway.service"

@@ -26,6 +26,10 @@ from dataclasses import dataclass
 from typing import Any
 
 ENV_PREFIX = "SOVD_"
+# Set by the supervisor for a restarted ROS worker, besides its settings: the attempt number
+# (absent at the first boot).  A restarted worker waits a while for the runtime dir's lock
+# (its predecessor may still be dying).
+RESTART_ENV = "SOVD_WORKER_RESTART"
 ACCESS_LOG_RATE = 100.0     # access lines per second, all HTTP workers together (app/accesslog.py)
 ACCESS_LOG_BURST = 1000     # access lines at once before the rate applies
 RATE_MAX = 1_000_000.0      # bounds of a RATE/BURST setting
