@@ -100,11 +100,13 @@ class RosClient:
         cached = self._entities
         if cached is not None and time.monotonic() - self._checked < self.graph_refresh:
             return cached
-        if cached is not None:
-            # Someone else is refreshing: the cache is at most one refresh old, use it.
+        if cached is not None and time.monotonic() - self._checked < 2 * self.graph_refresh:
+            # Someone else is refreshing a cache that was current a moment ago: use it.
             if not self._graph_lock.acquire(blocking=False):
                 return cached
         elif not self._graph_lock.acquire(timeout=self.ipc_timeout + 1.0):
+            # An old cache (this process was not asked for a while) is not served while a fresher
+            # one is on its way: concurrent requests wait for that refresh, or fail like it would.
             raise IpcError("deadline-exceeded", "The ROS graph is not available in time")
         try:
             return self._refresh()

@@ -308,3 +308,32 @@ def test_malformed_graph_answer_is_a_500_without_details(fw):
     body = r.get_json()
     assert body["error_code"] == "internal-error"
     assert "Traceback" not in r.get_data(as_text=True)
+
+
+def test_concurrent_requests_never_get_a_graph_older_than_a_refresh(fw):
+    """A worker that was not asked for a while does not serve its old graph to the requests that
+    arrive while one of them refreshes it (the dashboard asks for components and functions at
+    once, and got the functions of the graph at boot)."""
+    import threading
+    import time
+
+    app = make_app(fw, SOVD_GRAPH_REFRESH_S=0.05)
+    assert len(app.test_client().get("/api/v1/apps").get_json()["items"]) == 3
+    time.sleep(0.2)   # the cache is now older than two refresh intervals
+    fw.set_graph(list(ROBOT) + [node("/powertrain/gearbox/controller2")])
+    fw.delays["graph"] = 0.5   # the first request's refresh is in flight while the others arrive
+    start = threading.Barrier(4)
+    seen: list[list[str]] = []
+
+    def ask():
+        client = app.test_client()
+        start.wait(10)
+        seen.append([i["id"] for i in client.get("/api/v1/functions/powertrain/hosts").get_json()["items"]])
+
+    threads = [threading.Thread(target=ask) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(30)
+    assert len(seen) == 4
+    assert all("controller2" in ids for ids in seen), seen
