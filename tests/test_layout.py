@@ -1,11 +1,59 @@
-"""The layout the brief fixes: the ROS worker and the shared IPC layer import nothing from ``app/``.
+"""Regression gates on the layout: who may own ROS entities, who may import rclpy."""
 
-The HTTP side may change (Flask, gunicorn, gevent) without touching the process that owns rclpy.
-"""
+from __future__ import annotations
 
+import re
 import subprocess
 import sys
 
+from tests.support.procs import REPO
+
+# Outside the gateway proper: the demo robot, and the ROS nodes of the tests and of the
+# benchmark (tests/support/: publishers, the DDS floor, the subscribe-per-request baseline).
+EXEMPT = ("rosworker", "tests", "demo")
+CREATES = re.compile(r"\bcreate_(subscription|publisher|callback_group|generic_subscription)\s*\(")
+IMPORTS_RCLPY = re.compile(r"^\s*(import|from)\s+rclpy\b", re.MULTILINE)
+
+
+def python_files(*tops: str):
+    for top in tops:
+        yield from (p for p in (REPO / top).rglob("*.py") if "__pycache__" not in p.parts)
+
+
+def test_only_the_ros_worker_creates_subscriptions_publishers_or_callback_groups():
+    offenders = []
+    for path in REPO.rglob("*.py"):
+        rel = path.relative_to(REPO)
+        if rel.parts[0] in EXEMPT or rel.parts[0].startswith(".") or "__pycache__" in rel.parts:
+            continue
+        for number, line in enumerate(path.read_text().splitlines(), 1):
+            if CREATES.search(line):
+                offenders.append(f"{rel}:{number}: {line.strip()}")
+    assert not offenders, "ROS entities created outside rosworker/:\n" + "\n".join(offenders)
+
+
+def test_the_http_side_and_ipc_never_import_rclpy():
+    offenders = [str(p.relative_to(REPO)) for p in python_files("app", "ipc")
+                 if IMPORTS_RCLPY.search(p.read_text())]
+    assert not offenders, f"rclpy imported on the HTTP side: {offenders}"
+
+
+def test_the_gate_itself_catches_an_offender():
+    assert CREATES.search("    self.sub = node.create_subscription(String, '/x', cb, 1)")
+    assert CREATES.search("node.create_publisher(String, '/x', 10)")
+    assert IMPORTS_RCLPY.search("from rclpy.node import Node")
+    assert not IMPORTS_RCLPY.search("# rclpy is not imported here")
+
+
+def test_gevent_stays_out_of_the_ros_worker_and_the_supervisor():
+    """Only the HTTP workers use gevent (app/http_worker.py patches them after the fork)."""
+    files = [*python_files("rosworker"), REPO / "app" / "supervisor.py", REPO / "app" / "children.py"]
+    offenders = [str(p.relative_to(REPO)) for p in files if "gevent" in p.read_text()]
+    assert not offenders, f"gevent named outside the HTTP workers: {offenders}"
+
+
+# Imported for real (not grepped): rosworker/ and ipc/ load nothing from app/, so the HTTP side
+# may change (Flask, gunicorn, gevent) without touching the process that owns rclpy.
 CHECK = r"""
 import importlib, pkgutil, sys
 import ipc, rosworker
