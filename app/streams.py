@@ -60,6 +60,7 @@ HEARTBEAT_LOST = 3.0       # seconds without a heartbeat before the ROS worker c
 REPORT_EVERY = 1.0
 REPORT_TIMEOUT = 0.5
 SILENT_CHECK = 2.0         # seconds without frames (worker up) before a stream's subscription is looked up
+SILENT_SCAN = 0.5          # seconds between two scans of every stream for silence (a scan is O(streams))
 
 
 UNAVAILABLE = IpcError("unavailable", "The ROS worker is not running; data frames resume when it is back")
@@ -193,6 +194,7 @@ class StreamHub:
         self._greenlets: list[gevent.Greenlet] = []
         self._reported: dict[str, int] | None = None
         self._next_report = 0.0
+        self._next_scan = 0.0
         self._last_payload: dict[tuple[bytes, str], tuple[float, bytes]] = {}
 
     # ---- lifecycle ------------------------------------------------------------------------
@@ -362,7 +364,8 @@ class StreamHub:
                         for stream in list(streams):
                             if now - stream.last_frame >= stream.period:
                                 stream.push(error_frame(stream, UNAVAILABLE))
-                elif self.by_id:
+                elif self.by_id and now >= self._next_scan:
+                    self._next_scan = now + SILENT_SCAN
                     self._check_silent(now)
                 if now >= self._next_report:
                     self._next_report = now + REPORT_EVERY

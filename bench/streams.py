@@ -75,6 +75,8 @@ def read_streams(gw: Gateway, paths: list[str], period: float, open_for: float, 
     merged["stamp_latency_p50_ms"] = statistics.median(
         [o["stamp_latency_ms"]["p50"] for o in outs if o["stamp_latency_ms"]["n"]] or [float("nan")])
     merged["stamp_latency_n"] = sum(o["stamp_latency_ms"]["n"] for o in outs)
+    merged["stamp_to_tick_p50_ms"] = statistics.median(
+        [o["stamp_to_tick_ms"]["p50"] for o in outs if o["stamp_to_tick_ms"]["n"]] or [float("nan")])
     return merged
 
 
@@ -107,10 +109,12 @@ def case_streams(gw: Gateway, n: int, seconds: float) -> dict[str, Any]:
             measure_from = min(8.0, 2.0 + count / 400)
             health: list[float] = []
             warm: list[float] = []
+            floor: list[float] = []   # the reference: a route that does no IPC, under the same load
             stop = threading.Event()
             pollers = [threading.Thread(target=_poll, args=(f"{gw.api}/health", stop, health)),
                        threading.Thread(target=_poll, args=(f"{gw.api}/apps/{STREAM_APP}/data{topics[0]}",
-                                                           stop, warm))]
+                                                           stop, warm)),
+                       threading.Thread(target=_poll, args=(f"{gw.api}/version-info", stop, floor))]
             result: dict[str, Any] = {}
 
             def cpu_window():
@@ -135,6 +139,8 @@ def case_streams(gw: Gateway, n: int, seconds: float) -> dict[str, Any]:
             got.update(result)
             got["health_p99_ms"] = _p99(health)
             got["warm_p99_ms"] = _p99(warm)
+            got["floor_p99_ms"] = _p99(floor)
+            got["readers_cpu"] = got["cpu_s"] / (measure_from + seconds)
             got["delivered_ratio"] = got["delivered"] / got["expected"] if got["expected"] else 0.0
             return got
 

@@ -75,6 +75,7 @@ def main() -> None:
     readers: list[Reader] = []
     lateness: list[float] = []
     stamp_latency: list[float] = []
+    stamp_to_tick: list[float] = []   # publish stamp -> the tick that took it: the cyclic design's wait
     failed = errors = 0
     started = time.time()
     window_start = started + measure_from
@@ -122,6 +123,7 @@ def main() -> None:
                 if pub_ms != reader.last_stamp and window_start * 1000 <= arrived_ms <= window_end * 1000:
                     reader.last_stamp = pub_ms
                     stamp_latency.append(arrived_ms - pub_ms)
+                    stamp_to_tick.append(stamp - pub_ms)
 
     def feed(reader: Reader, data: bytes) -> None:
         reader.buf += data
@@ -191,6 +193,7 @@ def main() -> None:
                         "mean": statistics.fmean(lateness) if lateness else float("nan")},
         "stamp_latency_ms": {"p50": _percentile(stamp_latency, 0.5), "p99": _percentile(stamp_latency, 0.99),
                              "n": len(stamp_latency)},
+        "stamp_to_tick_ms": {"p50": _percentile(stamp_to_tick, 0.5), "n": len(stamp_to_tick)},
         "cpu_s": usage.ru_utime + usage.ru_stime,
     }), flush=True)
 
