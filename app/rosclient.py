@@ -21,6 +21,7 @@ Caches, per process and thread-safe:
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import threading
@@ -95,9 +96,20 @@ class RosClient:
 
     # ------------------------------------------------------------------ graph
 
-    def entities(self) -> entities.Entities:
-        """The entity index of the current ROS graph (at most ``graph_refresh`` old)."""
+    def entities(self, checked_since: float | None = None) -> entities.Entities:
+        """The entity index of the current ROS graph (at most ``graph_refresh`` old).
+
+        ``checked_since`` (a ``time.monotonic()`` value): the graph must have been asked for at or
+        after it.  A "not found" is confirmed this way before it is answered: the HTTP workers
+        cache the graph each on its own, so a client that just saw an entity through one worker
+        must not be told by the other that it does not exist.
+        """
         cached = self._entities
+        if checked_since is not None and cached is not None and self._checked < checked_since:
+            with self._graph_lock_for(self.ipc_timeout + 1.0):
+                if self._checked < checked_since:
+                    self._checked = 0.0     # forces _refresh to ask (with ``since``: cheap if unchanged)
+                return self._refresh()
         if cached is not None and time.monotonic() - self._checked < self.graph_refresh:
             return cached
         if cached is not None and time.monotonic() - self._checked < 2 * self.graph_refresh:
@@ -110,6 +122,15 @@ class RosClient:
             raise IpcError("deadline-exceeded", "The ROS graph is not available in time")
         try:
             return self._refresh()
+        finally:
+            self._graph_lock.release()
+
+    @contextlib.contextmanager
+    def _graph_lock_for(self, timeout: float):
+        if not self._graph_lock.acquire(timeout=timeout):
+            raise IpcError("deadline-exceeded", "The ROS graph is not available in time")
+        try:
+            yield
         finally:
             self._graph_lock.release()
 

@@ -337,3 +337,18 @@ def test_concurrent_requests_never_get_a_graph_older_than_a_refresh(fw):
         t.join(30)
     assert len(seen) == 4
     assert all("controller2" in ids for ids in seen), seen
+
+
+def test_a_not_found_is_confirmed_on_a_fresh_graph(fw):
+    """Each HTTP worker caches the graph on its own: an entity that one worker already shows must
+    not be a 404 from another whose cache is a moment older (a POST after a GET saw this)."""
+    client = make_app(fw, SOVD_GRAPH_REFRESH_S=60.0).test_client()
+    assert client.get("/api/v1/apps/temp_sensor").status_code == 200
+    fw.set_graph(list(ROBOT) + [node("/powertrain/gearbox/controller2")])
+    asked = len(fw.calls("graph"))
+    assert client.get("/api/v1/apps/controller2").status_code == 200
+    assert client.get("/api/v1/functions/powertrain/hosts").status_code == 200
+    assert len(fw.calls("graph")) == asked + 1      # one ask confirmed the miss; the hit needs none
+    r = client.get("/api/v1/apps/no_such_app")
+    assert r.status_code == 404 and r.get_json()["parameters"] == {"entity_id": "no_such_app"}
+    assert len(fw.calls("graph")) == asked + 2      # a real miss costs one ask (unchanged: cheap)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+import time
 from typing import Any
 
 import orjson
@@ -80,8 +81,12 @@ def lookup(collection: str, entity_id: str) -> Entity:
     details, data routes and the app relation routes answer this way.
     """
     check_entity_id(entity_id)
+    asked = time.monotonic()
     index = rosclient.get().entities()
     entity = index.get(collection, entity_id)
+    if entity is None:
+        index = rosclient.get().entities(checked_since=asked)   # a miss is confirmed on a fresh graph
+        entity = index.get(collection, entity_id)
     if entity is not None:
         return entity
     other = index.elsewhere(collection, entity_id)
@@ -108,7 +113,10 @@ def lookup_owner(collection: str, entity_id: str) -> Entity:
     if problem:
         raise ApiError(400, "invalid-parameter", f"Invalid {type_name.lower()} ID",
                        {"details": problem, param: entity_id[:300]})
+    asked = time.monotonic()
     entity = rosclient.get().entities().get(collection, entity_id)
+    if entity is None:
+        entity = rosclient.get().entities(checked_since=asked).get(collection, entity_id)
     if entity is None:
         raise ApiError(404, "entity-not-found", f"{type_name} not found", {param: entity_id})
     return entity

@@ -98,7 +98,12 @@ def entity_data_docs(collection: str, entity_id: str):
 
 def _documented_entity(collection: str, entity_id: str):
     """The entity, or medkit's 404 for a docs path that names none (any bad id included)."""
-    entity = None if entity_id_problem(entity_id) else rosclient.get().entities().get(collection, entity_id)
+    if entity_id_problem(entity_id):
+        entity = None
+    else:
+        asked = time.monotonic()
+        entity = rosclient.get().entities().get(collection, entity_id) \
+            or rosclient.get().entities(checked_since=asked).get(collection, entity_id)
     if entity is None:
         raise ApiError(404, "resource-not-found",
                        "No capability description available for the requested path")
