@@ -18,3 +18,12 @@ private_ros_domain()
 @pytest.fixture(scope="session")
 def ros_domain() -> int:
     return int(os.environ["ROS_DOMAIN_ID"])
+
+
+@pytest.fixture
+def nodes():
+    """ROS nodes (``RosNode``/``publisher``) appended here are stopped at the end of the test."""
+    started: list = []
+    yield started
+    for node in reversed(started):
+        node.stop()

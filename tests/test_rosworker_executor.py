@@ -5,7 +5,6 @@ from __future__ import annotations
 import os
 import threading
 import time
-import uuid
 
 import msgpack
 import pytest
@@ -14,20 +13,8 @@ import zmq
 from ipc import protocol
 from ipc.errors import IpcError
 from tests.support.gateway import Gateway
-from tests.support.procs import RosNode, poll_until, publisher
+from tests.support.procs import RosNode, poll_until, publisher, unique_topic
 from tests.support.rosworker import RosWorker
-
-
-def unique(name: str) -> str:
-    return f"/t{uuid.uuid4().hex[:8]}/{name}"
-
-
-@pytest.fixture
-def nodes():
-    started: list = []
-    yield started
-    for node in started:
-        node.stop()
 
 
 def silent(topics: list[str]) -> RosNode:
@@ -37,8 +24,8 @@ def silent(topics: list[str]) -> RosNode:
 
 
 def test_cold_wait_cap_sheds_excess_cold_callers_while_warm_topics_answer(nodes):
-    cold = [unique(f"cold{i}") for i in range(3)]
-    warm = unique("warm")
+    cold = [unique_topic(f"cold{i}") for i in range(3)]
+    warm = unique_topic("warm")
     nodes.append(silent(cold))
     nodes.append(publisher("warm", warm, "std_msgs/msg/String", {"data": "w"}, rate=20))
     worker = RosWorker(cold_wait_cap=2)
@@ -122,7 +109,7 @@ def test_full_queue_answers_backpressure_at_once_and_counts_drops():
 
 
 def test_shutdown_wakes_waiters_drains_and_exits_zero(nodes):
-    topic = unique("never")
+    topic = unique_topic("never")
     nodes.append(silent([topic]))
     worker = RosWorker()
     poll_until(lambda: any(t["name"] == topic for t in worker.call("graph")["topics"]), 10,
@@ -146,7 +133,7 @@ def test_shutdown_wakes_waiters_drains_and_exits_zero(nodes):
 def test_every_waiter_hears_the_shutdown_answer_before_the_socket_closes(nodes):
     """Clients use ZMQ_IMMEDIATE, so an answer not yet read when the connection drops is lost:
     the worker keeps its socket open a moment after its last replies (ipc/server.py)."""
-    topics = [unique(f"never{i}") for i in range(4)]
+    topics = [unique_topic(f"never{i}") for i in range(4)]
     nodes.append(silent(topics))
     worker = RosWorker()
     poll_until(lambda: {t["name"] for t in worker.call("graph")["topics"]} >= set(topics), 10,

@@ -6,29 +6,16 @@ import json
 import os
 import threading
 import time
-import uuid
 
 import pytest
 
 from tests.support.gateway import Gateway
-from tests.support.procs import RosNode, poll_until, publisher
+from tests.support.procs import RosNode, poll_until, publisher, unique_topic
 from tests.support.rosworker import SHADOW, RosWorker
 
 
-def unique(name: str) -> str:
-    return f"/t{uuid.uuid4().hex[:8]}/{name}"
-
-
-@pytest.fixture
-def nodes():
-    started: list = []
-    yield started
-    for node in started:
-        node.stop()
-
-
 def test_first_read_subscribes_and_later_reads_come_from_the_pool(nodes):
-    topic = unique("temperature")
+    topic = unique_topic("temperature")
     nodes.append(publisher("temp", topic, "sensor_msgs/msg/Temperature", {"temperature": 93.5},
                            counter="variance"))
     worker = RosWorker()
@@ -58,7 +45,7 @@ def test_first_read_subscribes_and_later_reads_come_from_the_pool(nodes):
 def test_topic_without_publishers_answers_metadata_only_at_once():
     worker = RosWorker()
     try:
-        reply = worker.sample(unique("nothing"), timeout_ms=20000)
+        reply = worker.sample(unique_topic("nothing"), timeout_ms=20000)
         assert reply["status"] == "metadata_only"
         assert reply["reason"] == "not-in-graph"
         assert reply["data_json"] == b"{}"
@@ -68,7 +55,7 @@ def test_topic_without_publishers_answers_metadata_only_at_once():
 
 
 def test_lru_promotion_order_evicts_the_least_recently_read(nodes):
-    a, b, c = unique("a"), unique("b"), unique("c")
+    a, b, c = unique_topic("a"), unique_topic("b"), unique_topic("c")
     nodes.append(RosNode({"node": "abc", "publish": [
         {"topic": t, "type": "std_msgs/msg/String", "rate": 20, "value": {"data": t}} for t in (a, b, c)]}))
     worker = RosWorker(max_pool_size=2)
@@ -86,7 +73,7 @@ def test_lru_promotion_order_evicts_the_least_recently_read(nodes):
 
 
 def test_concurrent_first_reads_create_exactly_one_subscription(nodes):
-    topic = unique("busy")
+    topic = unique_topic("busy")
     nodes.append(publisher("busy", topic, "std_msgs/msg/String", {"data": "x"}, rate=50))
     worker = RosWorker(cold_wait_cap=0, max_queue_depth=4096)
     poll_until(lambda: worker.call("graph")["topics"], 10, message="publisher discovered")
@@ -118,7 +105,7 @@ def test_concurrent_first_reads_create_exactly_one_subscription(nodes):
 
 
 def test_publisher_leaving_evicts_the_entry_and_drops_our_subscription(nodes):
-    topic = unique("leaving")
+    topic = unique_topic("leaving")
     pub = publisher("leaving", topic, "std_msgs/msg/String", {"data": "bye"})
     nodes.append(pub)
     worker = RosWorker(graph_poll_tick=50)
@@ -139,7 +126,7 @@ def test_publisher_leaving_evicts_the_entry_and_drops_our_subscription(nodes):
 
 
 def test_type_change_evicts_and_the_next_read_serves_the_new_type(nodes):
-    topic = unique("morph")
+    topic = unique_topic("morph")
     first = publisher("morph_a", topic, "std_msgs/msg/String", {"data": "text"})
     worker = RosWorker(graph_poll_tick=50)
     try:
@@ -156,7 +143,7 @@ def test_type_change_evicts_and_the_next_read_serves_the_new_type(nodes):
 
 
 def test_idle_entries_are_swept(nodes):
-    topic = unique("idle")
+    topic = unique_topic("idle")
     nodes.append(publisher("idle", topic, "std_msgs/msg/String", {"data": "z"}))
     worker = RosWorker(idle_safety_net=1, idle_sweep_tick=0.2)
     try:
@@ -168,7 +155,7 @@ def test_idle_entries_are_swept(nodes):
 
 
 def test_manual_evict(nodes):
-    topic = unique("manual")
+    topic = unique_topic("manual")
     nodes.append(publisher("manual", topic, "std_msgs/msg/String", {"data": "m"}))
     worker = RosWorker()
     try:
@@ -181,7 +168,7 @@ def test_manual_evict(nodes):
 
 
 def test_unsupported_type_is_metadata_only_logged_once_and_counted(nodes):
-    topic = unique("diag")
+    topic = unique_topic("diag")
     nodes.append(publisher("diag", topic, "diagnostic_msgs/msg/KeyValue", {"key": "k", "value": "v"}))
     env = {"PYTHONPATH": os.pathsep.join(filter(None, [str(SHADOW), os.environ.get("PYTHONPATH")]))}
     worker = RosWorker(env=env)
@@ -201,7 +188,7 @@ def test_unsupported_type_is_metadata_only_logged_once_and_counted(nodes):
 
 
 def test_pooled_topics_are_subscribed_again_after_a_restart(nodes):
-    topic = unique("rewarm")
+    topic = unique_topic("rewarm")
     nodes.append(publisher("rewarm", topic, "std_msgs/msg/String", {"data": "warm"}))
     worker = RosWorker()
     runtime_dir = worker.runtime_dir
@@ -221,7 +208,7 @@ def test_pooled_topics_are_subscribed_again_after_a_restart(nodes):
 
 
 def test_eviction_wakes_the_waiters_of_the_entry(nodes):
-    topic = unique("quiet")
+    topic = unique_topic("quiet")
     quiet = RosNode({"node": "quiet", "publish": [{"topic": topic, "type": "std_msgs/msg/String",
                                                    "rate": 0.001}]})
     nodes.append(quiet)
@@ -264,7 +251,7 @@ def gateway():
 
 
 def test_an_undecodable_message_answers_502_and_the_ros_worker_lives_on(nodes, gateway):
-    bad, good = unique("bad"), unique("good")
+    bad, good = unique_topic("bad"), unique_topic("good")
     nodes.append(RosNode({"node": "garbler", "publish": [
         {"topic": bad, "type": "std_msgs/msg/String", "rate": 10, "raw": BAD_STRING_CDR}]}))
     nodes.append(publisher("fine", good, "std_msgs/msg/String", {"data": "ok"}))
@@ -273,11 +260,17 @@ def test_an_undecodable_message_answers_502_and_the_ros_worker_lives_on(nodes, g
     pid = gw.rosworker_pid()
     poll_until(lambda: gw.get(f"/components/{host}/data{good}").json()["x-medkit"]["status"] == "data",
                15, message="the good topic")
-    for _ in range(5):  # the cold read, then warm reads of the same failing topic
+
+    def read_bad():
         r = gw.get(f"/components/{host}/data{bad}")
         if r.status_code == 200 and r.json()["x-medkit"].get("reason") in ("timeout", "no-publishers",
                                                                             "not-in-graph"):
-            continue  # not discovered yet
+            return None  # the garbler is not discovered (or matched) yet: ask again
+        return [r]   # (a Response is falsy when its status is an error)
+
+    [first] = poll_until(read_bad, 60, interval=0.2, message="the failing topic discovered")
+    for r in [first] + [gw.get(f"/components/{host}/data{bad}") for _ in range(4)]:
+        # the first read that reached a message, then warm reads of the same failing topic
         assert r.status_code == 502, r.text
         body = r.json()
         assert body["error_code"] == "vendor-error"
@@ -302,7 +295,7 @@ def test_an_undecodable_message_answers_502_and_the_ros_worker_lives_on(nodes, g
 
 
 def test_lru_eviction_never_cuts_a_cold_waiter_short(nodes, gateway):
-    quiet, warm = unique("quiet"), unique("warm")
+    quiet, warm = unique_topic("quiet"), unique_topic("warm")
     nodes.append(RosNode({"node": "quiet", "publish": [{"topic": quiet, "type": "std_msgs/msg/String",
                                                         "rate": 0.001}]}))
     nodes.append(publisher("warm", warm, "std_msgs/msg/String", {"data": "w"}, rate=20))
@@ -328,7 +321,7 @@ def test_lru_eviction_never_cuts_a_cold_waiter_short(nodes, gateway):
 
 
 def test_the_gateways_own_publisher_does_not_keep_a_topic_alive(nodes, gateway):
-    topic = unique("scan")
+    topic = unique_topic("scan")
     robot = publisher("robot", topic, "std_msgs/msg/String", {"data": "from the robot"})
     nodes.append(robot)
     gw = gateway("--allow-publish")
@@ -350,7 +343,7 @@ def test_the_gateways_own_publisher_does_not_keep_a_topic_alive(nodes, gateway):
 
 
 def test_the_byte_budget_bounds_the_pool_with_image_topics(nodes, gateway):
-    topics = [unique(f"camera{i}") for i in range(4)]
+    topics = [unique_topic(f"camera{i}") for i in range(4)]
     image = {"height": 480, "width": 640, "encoding": "rgb8", "step": 1920,
              "data": {"__fill__": [7, 640 * 480 * 3]}}
     nodes.append(RosNode({"node": "cameras", "publish": [

@@ -5,24 +5,11 @@ from __future__ import annotations
 
 import signal
 import threading
-import uuid
 
 import pytest
 
 from tests.support.gateway import Gateway
-from tests.support.procs import RosNode, poll_until
-
-
-def unique(name: str) -> str:
-    return f"/t{uuid.uuid4().hex[:8]}/{name}"
-
-
-@pytest.fixture
-def nodes():
-    started: list = []
-    yield started
-    for node in started:
-        node.stop()
+from tests.support.procs import RosNode, poll_until, unique_topic
 
 
 @pytest.fixture
@@ -51,7 +38,7 @@ def subscribers_seen(gw, host: str, topic: str, count: int) -> bool:
 
 
 def test_a_latched_command_input_hears_the_put_and_the_answer_counts_it(nodes, gateway):
-    topic = unique("lights_cmd")
+    topic = unique_topic("lights_cmd")
     sub = listener(topic, "std_msgs/msg/Bool", durability="transient_local")
     nodes.append(sub)
     gw = gateway()
@@ -69,7 +56,7 @@ def test_a_latched_command_input_hears_the_put_and_the_answer_counts_it(nodes, g
 
 
 def test_subscribers_the_message_cannot_reach_are_reported(nodes, gateway):
-    topic = unique("mixed")
+    topic = unique_topic("mixed")
     nodes.append(listener(topic, "std_msgs/msg/String"))   # another type: can never match a Bool
     gw = gateway("--publish-match-wait", "0.5")
     host = gw.host()
@@ -83,7 +70,7 @@ def test_subscribers_the_message_cannot_reach_are_reported(nodes, gateway):
 
 
 def test_an_unused_publisher_expires(gateway):
-    topic = unique("once")
+    topic = unique_topic("once")
     gw = gateway("--idle-safety-net", "1", "--idle-sweep-tick", "0.1")
     host = gw.host()
     r = gw.put(f"/components/{host}/data{topic}", json={"type": "std_msgs/msg/Bool", "data": {"data": True}})
@@ -100,7 +87,7 @@ def test_an_unused_publisher_expires(gateway):
 
 
 def test_a_put_waiting_for_its_subscribers_at_shutdown_is_answered_not_published(nodes, gateway):
-    topic = unique("late")
+    topic = unique_topic("late")
     sub = listener(topic, "std_msgs/msg/String")   # a Bool publisher waits for it in vain
     nodes.append(sub)
     gw = gateway("--publish-match-wait", "20", "--ipc-timeout", "30")

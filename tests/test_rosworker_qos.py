@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import time
-import uuid
 from types import SimpleNamespace
 
 import orjson
@@ -11,20 +10,8 @@ import pytest
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from rosworker import qos
-from tests.support.procs import RosNode, poll_until, publisher
+from tests.support.procs import RosNode, poll_until, publisher, unique_topic
 from tests.support.rosworker import RosWorker
-
-
-def unique(name: str) -> str:
-    return f"/t{uuid.uuid4().hex[:8]}/{name}"
-
-
-@pytest.fixture
-def nodes():
-    started: list = []
-    yield started
-    for node in started:
-        node.stop()
 
 
 def endpoint(reliability, durability):
@@ -49,7 +36,7 @@ def test_match_qos_rules(publishers, reliability, durability):
 
 
 def test_latched_value_published_long_before_the_first_read_is_served(nodes):
-    topic = unique("state")
+    topic = unique_topic("state")
     nodes.append(publisher("latch", topic, "std_msgs/msg/String", {"data": "latched-value"},
                            once=True, durability="transient_local", depth=1))
     time.sleep(1.0)  # published well before anyone reads
@@ -62,7 +49,7 @@ def test_latched_value_published_long_before_the_first_read_is_served(nodes):
 
 
 def test_best_effort_publisher_is_heard(nodes):
-    topic = unique("be")
+    topic = unique_topic("be")
     nodes.append(publisher("be", topic, "std_msgs/msg/String", {"data": "best-effort"},
                            reliability="best_effort"))
     worker = RosWorker()
@@ -73,7 +60,7 @@ def test_best_effort_publisher_is_heard(nodes):
 
 
 def test_best_effort_publisher_on_a_mixed_topic_is_heard(nodes):
-    topic = unique("mixed")
+    topic = unique_topic("mixed")
     # The reliable publisher stays silent; only the best-effort one speaks.
     nodes.append(RosNode({"node": "mixed", "publish": [
         {"topic": topic, "type": "std_msgs/msg/String", "rate": 0.001},
@@ -89,7 +76,7 @@ def test_best_effort_publisher_on_a_mixed_topic_is_heard(nodes):
 
 
 def test_incompatible_publisher_joining_rebuilds_the_subscription(nodes):
-    topic = unique("rebuild")
+    topic = unique_topic("rebuild")
     nodes.append(publisher("rel", topic, "std_msgs/msg/String", {"data": "reliable"}))
     worker = RosWorker(graph_poll_tick=50)
     try:

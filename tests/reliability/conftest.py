@@ -59,10 +59,3 @@ def gateways():
         gw.stop()
 
 
-@pytest.fixture
-def nodes():
-    """ROS nodes (``RosNode``/``publisher``) appended here are stopped at the end of the test."""
-    started: list = []
-    yield started
-    for node in reversed(started):
-        node.stop()

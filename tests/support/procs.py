@@ -21,6 +21,7 @@ import subprocess
 import sys
 import threading
 import time
+import uuid
 from collections.abc import Callable
 from pathlib import Path
 
@@ -82,6 +83,11 @@ def poll_until(predicate: Callable[[], object], timeout: float, interval: float 
         time.sleep(interval)
     raise AssertionError(f"timed out after {timeout} s waiting for {message}"
                          + (f" (last error: {last_exc!r})" if last_exc else ""))
+
+
+def unique_topic(name: str) -> str:
+    """``/t<8 hex>/name``: a topic no other test (or earlier run in the same domain) uses."""
+    return f"/t{uuid.uuid4().hex[:8]}/{name}"
 
 
 def free_port() -> int:
