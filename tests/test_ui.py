@@ -110,6 +110,15 @@ def none_left(gw: Gateway, app: str) -> None:
     poll_until(lambda: subscriptions(gw, app) == [], 10, message=f"no subscription of {app} left")
 
 
+def open_temperature(gw: Gateway, tab):
+    """Open the demo's engine temperature (no earlier page's subscription left): its live value."""
+    none_left(gw, "temp_sensor")
+    tab.goto(gw.url + "/ui/#/apps/temp_sensor/data/powertrain/engine/temperature")
+    value = leaf(tab, "temperature")
+    expect(value).to_have_text(NUMBER)
+    return value
+
+
 def leaf(tab, path: str):
     """The value of a leaf of the item view's JSON tree."""
     return tab.locator(f"#item .json .leaf[data-path='{path}'] > .val")
@@ -280,10 +289,7 @@ def test_without_publishing_there_is_no_form(robot, browser, page):
 
 def test_a_ros_worker_restart_is_shown_and_the_view_recovers_by_itself(gw, page):
     tab, _ = page
-    none_left(gw, "temp_sensor")
-    tab.goto(gw.url + "/ui/#/apps/temp_sensor/data/powertrain/engine/temperature")
-    value = leaf(tab, "temperature")
-    expect(value).to_have_text(NUMBER)
+    value = open_temperature(gw, tab)
     badge = tab.locator("#worker-badge")
     expect(badge).to_have_attribute("data-state", "healthy")
     pid = gw.rosworker_pid()
@@ -323,10 +329,7 @@ def test_non_finite_floats_are_shown_and_plotted_as_such(gw, page):
 
 def test_a_hidden_tab_gives_its_stream_back_and_takes_a_new_one_when_shown(gw, page):
     tab, _ = page
-    none_left(gw, "temp_sensor")
-    tab.goto(gw.url + "/ui/#/apps/temp_sensor/data/powertrain/engine/temperature")
-    value = leaf(tab, "temperature")
-    expect(value).to_have_text(NUMBER)
+    value = open_temperature(gw, tab)
     (first,) = subscriptions(gw, "temp_sensor")
     # Headless chromium never hides a tab: the page is told it is hidden, as a browser tells it.
     tab.evaluate("""() => {
@@ -349,10 +352,7 @@ def test_a_hidden_tab_gives_its_stream_back_and_takes_a_new_one_when_shown(gw, p
 
 def test_a_stream_that_ends_is_replaced_by_itself(gw, page):
     tab, _ = page
-    none_left(gw, "temp_sensor")
-    tab.goto(gw.url + "/ui/#/apps/temp_sensor/data/powertrain/engine/temperature")
-    value = leaf(tab, "temperature")
-    expect(value).to_have_text(NUMBER)
+    value = open_temperature(gw, tab)
     (first,) = subscriptions(gw, "temp_sensor")
     # Another client deletes it (as expiry would end it): the gateway ends the stream at once.
     r = requests.delete(f"{gw.api}/apps/temp_sensor/cyclic-subscriptions/{first['id']}", timeout=10)
