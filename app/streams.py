@@ -131,7 +131,8 @@ class Stream:
         self.wake.set()
 
     def body(self) -> Iterator[bytes]:
-        """The response body; its ``finally`` gives the stream back (client gone, expiry, end).
+        """The response body: it opens the stream in the hub when it is first iterated, and its
+        ``finally`` gives it back (client gone, expiry, end).
 
         The server writes what is yielded on this greenlet; a write that takes longer
         than the send timeout raises :class:`SendStalled` there (gunicorn closes the
@@ -140,6 +141,10 @@ class Stream:
         hub = self.hub
         stalled = gevent.Timeout(hub.send_timeout, SendStalled(hub.send_timeout))
         try:
+            # Registered here, on the first iteration, and nowhere else: a response whose body
+            # is never iterated (a HEAD: the server sends no body) registers nothing, so no
+            # stream can be open without this ``finally`` to give it back.
+            hub.register(self)
             quiet_since = time.monotonic()
             while True:
                 if self.frames:
@@ -228,8 +233,8 @@ class StreamHub:
         return self.connected and time.monotonic() - self.heartbeat <= HEARTBEAT_LOST
 
     # ---- streams ----------------------------------------------------------------------------
-    def open(self, sub: dict[str, Any]) -> Stream:
-        stream = Stream(self, sub)
+    def register(self, stream: Stream) -> None:
+        """Start feeding ``stream`` (called by its body, on its first iteration only)."""
         self._add(stream)
         self.by_id.setdefault(stream.id, set()).add(stream)
         self.counters["open_streams"] += 1
@@ -237,7 +242,6 @@ class StreamHub:
         cached = self._last_payload.get((stream.key, stream.entity_id))
         if cached is not None and time.monotonic() - cached[0] < stream.period * 2:
             stream.push(cached[1])  # the latest value at once, not one interval later
-        return stream
 
     def close(self, stream: Stream) -> None:
         stream.ended = True
@@ -453,3 +457,16 @@ def init_app(app: Flask) -> None:
 
 def get() -> StreamHub:
     return current_app.extensions[EXTENSION].get()
+
+
+def body(sub: dict[str, Any]) -> Iterator[bytes]:
+    """The body of one ``.../events`` response for ``sub`` (a ``sub_get`` answer).
+
+    Nothing happens until the server iterates it (not even this process's hub
+    being made): a HEAD, whose body is never iterated, opens no stream.
+    """
+    return _serve(current_app.extensions[EXTENSION], sub)  # the app is looked up now, in the request
+
+
+def _serve(per_process: _PerProcess, sub: dict[str, Any]) -> Iterator[bytes]:
+    yield from Stream(per_process.get(), sub).body()

@@ -20,7 +20,9 @@ import psutil
 import pytest
 import requests
 
+from app.streams import SILENT_CHECK
 from tests.support.gateway import Gateway
+from tests.support.metrics import families, value
 from tests.support.procs import RosNode, poll_until
 from tests.support.sse import EventStream
 
@@ -135,6 +137,46 @@ def test_a_new_interval_applies_to_an_open_stream(gw):
         fast = stream.collect(2.0)
     assert len(slow) <= 7 and len(fast) >= 15, (len(slow), len(fast))
     requests.delete(gw.api + f"{BASE}/{sub['id']}", timeout=10)
+
+
+def _sub_gets(ros) -> int:
+    """How many ``sub_get`` commands the ROS worker has run."""
+    return ros.call("stats")["details"]["commands"].get("sub_get", {}).get("count", 0)
+
+
+def _streams_open(gw) -> float:
+    return value(families(gw.url), "sovd_http_streams_open")
+
+
+def test_a_head_of_an_event_stream_answers_its_headers_and_opens_nothing(gw):
+    """Issue 18, defect 1: each HEAD opened a stream whose body was never iterated, so nothing
+    closed it; after the DELETE every such stream asked the ROS worker for its subscription
+    every couple of seconds, for ever."""
+    sub = subscribe(gw, "slow")
+    for _ in range(50):
+        r = requests.head(gw.url + sub["event_source"], timeout=10)
+        assert r.status_code == 200 and r.content == b""
+        assert r.headers["content-type"].startswith("text/event-stream")
+        assert r.headers["cache-control"] == "no-cache" and r.headers["x-accel-buffering"] == "no"
+    assert _streams_open(gw) == 0        # the gauge moves in the request itself: no wait needed
+    with open_stream(gw, sub) as stream:  # a GET beside them opens exactly one
+        assert stream.next(timeout=5) is not None
+        assert _streams_open(gw) == 1
+        assert requests.delete(gw.api + f"{BASE}/{sub['id']}", timeout=10).status_code == 204
+        assert stream.ended(timeout=3)
+    poll_until(lambda: _streams_open(gw) == 0, 10, message="the stream given back")
+    # A stream left open after its subscription ended is looked up every SILENT_CHECK seconds.
+    # Nothing may happen here, so this watches for a fixed while: three such rounds.
+    ros = gw.rosworker_client()
+    try:
+        before = _sub_gets(ros)
+        until = time.monotonic() + 3 * SILENT_CHECK + 1
+        while time.monotonic() < until:
+            assert _streams_open(gw) == 0
+            assert _sub_gets(ros) == before, "a stream nobody reads still looks up its subscription"
+            time.sleep(0.5)
+    finally:
+        ros.close()
 
 
 def _worker_of(gw, local_port: int) -> int:

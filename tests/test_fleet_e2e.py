@@ -31,9 +31,9 @@ import uuid
 
 import pytest
 import requests
-from prometheus_client.parser import text_string_to_metric_families
 
 from tests.support.gateway import Gateway
+from tests.support.metrics import parse, value
 from tests.support.procs import RosNode, poll_until
 from tests.support.sse import EventStream
 
@@ -76,14 +76,7 @@ def scrape(gw: Gateway, timeout: float = 10) -> dict:
     r = requests.get(gw.url + "/metrics", timeout=timeout)
     assert r.status_code == 200
     assert "X-RateLimit-Limit" not in r.headers  # never limited
-    return {f.name: f for f in text_string_to_metric_families(r.text)}
-
-
-def value(families: dict, family: str, sample: str | None = None, **labels) -> float:
-    for s in families[family].samples if family in families else ():
-        if s.name == (sample or family) and all(s.labels.get(k) == v for k, v in labels.items()):
-            return s.value
-    return 0.0
+    return parse(r.text)
 
 
 def grep(gw: Gateway, predicate, timeout: float = 10) -> str:

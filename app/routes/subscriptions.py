@@ -218,7 +218,6 @@ def events(collection: str, entity_id: str, sub_id: str):
     entity = lookup(collection, entity_id)
     _known(sub_id)
     sub = _call("sub_get", {"collection": collection, "entity_id": entity.id, "id": sub_id}, sub_id)
-    stream = streams.get().open(sub)
     return current_app.response_class(
-        stream.body(), mimetype="text/event-stream",
+        streams.body(sub), mimetype="text/event-stream",
         headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
