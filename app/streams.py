@@ -60,6 +60,7 @@ HEARTBEAT_LOST = 3.0       # seconds without a heartbeat before the ROS worker c
 REPORT_EVERY = 1.0
 REPORT_TIMEOUT = 0.5
 SILENT_CHECK = 2.0         # seconds without frames (worker up) before a stream's subscription is looked up
+EXPIRY_SLACK = 1.0         # seconds an expiry from sub_get may differ from a stream's before it is applied
 SILENT_SCAN = 0.5          # seconds between two scans of every stream for silence (a scan is O(streams))
 
 
@@ -180,12 +181,12 @@ class Stream:
 
 class StreamHub:
     def __init__(self, runtime_dir: str, report: Callable[[dict[str, int]], None],
-                 lookup: Callable[[Stream], None], stopping: Callable[[], bool] = lambda: False,
+                 lookup: Callable[[Stream], dict[str, Any]], stopping: Callable[[], bool] = lambda: False,
                  send_timeout: float = 30.0):
         self.runtime_dir = runtime_dir
         self.send_timeout = send_timeout
         self._report = report                  # sends counters to the ROS worker (may raise IpcError)
-        self._lookup = lookup                  # asks the ROS worker for a stream's subscription (IpcError)
+        self._lookup = lookup                  # a stream's subscription from the ROS worker (IpcError)
         self._stopping = stopping              # true once this HTTP worker is shutting down
         self.by_key: dict[bytes, set[Stream]] = {}
         self.by_id: dict[str, set[Stream]] = {}
@@ -347,12 +348,20 @@ class StreamHub:
                 stream.end()
         elif kind == "updated":
             for stream in streams:
-                self._remove(stream)
-                stream.key = event["key"]
-                stream.interval = event["interval"]
-                stream.expires = time.monotonic() + float(event["expires_in"])
-                self._add(stream)
-                stream.wake.set()
+                self._apply(stream, event["key"], event["interval"], float(event["expires_in"]))
+
+    def _apply(self, stream: Stream, key: bytes, interval: str, expires_in: float) -> None:
+        """Give ``stream`` its subscription's current key, interval and expiry (from an ``updated``
+        event, or from a ``sub_get`` of the silence check when that event was lost)."""
+        if stream.ended:
+            return
+        if key != stream.key:
+            self._remove(stream)
+            stream.key = key
+            self._add(stream)
+        stream.interval = interval
+        stream.expires = time.monotonic() + expires_in
+        stream.wake.set()
 
     # ---- the ticker -------------------------------------------------------------------------
     def _tick(self) -> None:
@@ -380,9 +389,11 @@ class StreamHub:
                 log.exception("stream ticker failed a round")
 
     def _check_silent(self, now: float) -> None:
-        """Streams that get no frames while the ROS worker is there: is their subscription gone?
+        """Streams that get no frames while the ROS worker is there: is their subscription gone,
+        or was it changed by an ``updated`` event this process never got?
 
-        (A ROS worker killed before it saved a new subscription comes back without it.)
+        (A ROS worker killed before it saved a new subscription comes back without it; a PUB
+        socket drops what it sends while a SUB is reconnecting, see ``ipc/PROTOCOL.md``.)
         """
         for streams in list(self.by_id.values()):
             for stream in list(streams):
@@ -391,11 +402,20 @@ class StreamHub:
                     gevent.spawn(self._verify, stream)
 
     def _verify(self, stream: Stream) -> None:
+        """Apply what the ROS worker says of a silent stream's subscription: it is gone (the
+        stream ends), or its key, interval or expiry moved (the stream follows)."""
         try:
-            self._lookup(stream)
+            sub = self._lookup(stream)
         except IpcError as exc:
             if exc.code == "no-such-subscription":
                 stream.end(error_frame(stream, exc))
+            return
+        expires_in = max(0.0, (sub["expires_at_ns"] - time.time_ns()) / 1e9)
+        if sub["key"] != stream.key or sub["interval"] != stream.interval \
+                or abs(stream.expires - time.monotonic() - expires_in) > EXPIRY_SLACK:
+            log.info("stream of %s: applying the subscription's current interval %s (an update was "
+                     "not received on the events channel)", stream.id, sub["interval"])
+            self._apply(stream, sub["key"], sub["interval"], expires_in)
 
     def _send_report(self) -> None:
         counters = dict(self.counters)
@@ -432,8 +452,8 @@ class _PerProcess:
     def _report(self, counters: dict[str, int]) -> None:
         self.ros.call("streams_report", counters, timeout=REPORT_TIMEOUT)
 
-    def _lookup(self, stream: Stream) -> None:
-        self.ros.call("sub_get", {"collection": stream.collection, "entity_id": stream.entity_id,
+    def _lookup(self, stream: Stream) -> dict[str, Any]:
+        return self.ros.call("sub_get", {"collection": stream.collection, "entity_id": stream.entity_id,
                                   "id": stream.id}, timeout=REPORT_TIMEOUT)
 
     def close(self) -> None:
