@@ -416,17 +416,22 @@ def _subscription_paths(collection: str) -> dict[str, Any]:
                   "another entity (`x-medkit-entity-mismatch`) or another collection than `data` "
                   "(`x-medkit-collection-not-supported`), or a protocol other than sse "
                   "(`x-medkit-unsupported-protocol`)")
+    # With an API token configured, what changes a subscription needs it (README, "who may do it").
+    unauthorized = ("401", "An API token is configured and the request has none (`unauthorized`)")
+    forbidden = ("403", "An API token is configured and the request's is wrong (`forbidden`)")
+    token = {"security": [{"bearerAuth": []}, {}]}
     full = ("503", "At the max_subscriptions cap (`service-unavailable`), or the ROS worker is away; "
                    "retry after `Retry-After` seconds")
     created = {"description": "Created", "headers": {"Location": {"schema": STR}},
                "content": {"application/json": {"schema": ref("CyclicSubscription")}}}
     create = _op(f"create{title}CyclicSubscription", "Subscriptions",
-                 f"Stream a data item of a {collection[:-1]} every interval (SSE)", None, bad, not_found, full,
-                 "504", parameters=params, requestBody={"required": True, "content": {"application/json": {
+                 f"Stream a data item of a {collection[:-1]} every interval (SSE)", None, bad, unauthorized,
+                 forbidden, not_found, full, "504", **token, parameters=params, requestBody={"required": True, "content": {"application/json": {
                      "schema": ref("CyclicSubscriptionCreateRequest")}}})
     create["responses"] = {"201": created, **create["responses"]}
     delete = _op(f"delete{title}CyclicSubscription", "Subscriptions", "Cancel a subscription; an open "
-                 "stream of it ends at once", None, not_found, "503", "504", parameters=params + [sub_param])
+                 "stream of it ends at once", None, unauthorized, forbidden, not_found, "503", "504", **token,
+                 parameters=params + [sub_param])
     delete["responses"] = {"204": {"description": "Deleted"}, **delete["responses"]}
     events = {"description": "text/event-stream: `data: {\"timestamp\", \"payload\"}` every interval, "
                              "payload being exactly what a GET of the resource answers; `{\"timestamp\", "
@@ -444,8 +449,8 @@ def _subscription_paths(collection: str) -> dict[str, Any]:
                        _ok("CyclicSubscription"), not_found, "503", "504", parameters=params + [sub_param]),
             "put": _op(f"update{title}CyclicSubscription", "Subscriptions", "Change interval and/or duration "
                        "(a new duration counts from now); applies to open streams",
-                       _ok("CyclicSubscription"), bad, not_found, "503", "504",
-                       parameters=params + [sub_param], requestBody={"required": True, "content": {
+                       _ok("CyclicSubscription"), bad, unauthorized, forbidden, not_found, "503", "504",
+                       **token, parameters=params + [sub_param], requestBody={"required": True, "content": {
                            "application/json": {"schema": ref("CyclicSubscriptionUpdateRequest")}}}),
             "delete": delete,
         },

@@ -180,25 +180,32 @@ def test_every_route_answers_per_the_document(doc):
             base = f"/api/v1/{collection}/{ENTITY[collection]}/cyclic-subscriptions"
             resource = f"/api/v1/{collection}/{ENTITY[collection]}/data/powertrain/engine/temperature"
             good = {"resource": resource, "interval": "fast", "duration": 30}
-            made = client.post(base, json=good)
+            made = client.post(base, json=good, headers=auth)
             sub = f"{base}/{made.get_json()['id']}"
+            wrong = {"Authorization": "Bearer wrong"}
             for method, path, kw in [
-                ("POST", base, {"json": good}), ("POST", base, {"json": {**good, "interval": "hourly"}}),
-                ("POST", base, {"json": {**good, "resource": "/api/v1/apps/x/faults"}}),
-                ("POST", f"/api/v1/{collection}/nope/cyclic-subscriptions", {"json": good}),
+                ("POST", base, {"json": good, "headers": auth}),
+                ("POST", base, {"json": {**good, "interval": "hourly"}, "headers": auth}),
+                ("POST", base, {"json": {**good, "resource": "/api/v1/apps/x/faults"}, "headers": auth}),
+                ("POST", f"/api/v1/{collection}/nope/cyclic-subscriptions", {"json": good, "headers": auth}),
+                ("POST", base, {"json": good}), ("POST", base, {"json": good, "headers": wrong}),
                 ("GET", base, {}), ("GET", f"/api/v1/{collection}/bad.id/cyclic-subscriptions", {}),
                 ("GET", sub, {}), ("GET", base + "/sub_0000000000000000", {}),
-                ("PUT", sub, {"json": {"interval": "slow"}}), ("PUT", sub, {"json": {"duration": -1}}),
-                ("PUT", base + "/sub_0000000000000000", {"json": {"interval": "slow"}}),
+                ("PUT", sub, {"json": {"interval": "slow"}, "headers": auth}),
+                ("PUT", sub, {"json": {"duration": -1}, "headers": auth}),
+                ("PUT", base + "/sub_0000000000000000", {"json": {"interval": "slow"}, "headers": auth}),
+                ("PUT", sub, {"json": {"interval": "slow"}}), ("PUT", sub, {"json": {"interval": "slow"},
+                                                                             "headers": wrong}),
                 ("GET", base + "/sub_0000000000000000/events", {}),
-                ("DELETE", sub, {}), ("DELETE", sub, {}),
+                ("DELETE", sub, {}), ("DELETE", sub, {"headers": wrong}),
+                ("DELETE", sub, {"headers": auth}), ("DELETE", sub, {"headers": auth}),
             ]:
                 r = client.open(path, method=method, **kw)
                 check(doc, method, path, r)
                 seen.setdefault(operation(doc, method, path)[0], set()).add(r.status_code)
         fw.errors["sub_create"] = IpcError("subscriptions-full", "full", {"max_subscriptions": 1000})
         r = client.post("/api/v1/apps/temp_sensor/cyclic-subscriptions", json={
-            "resource": "/api/v1/apps/temp_sensor/data/x", "interval": "slow", "duration": 5})
+            "resource": "/api/v1/apps/temp_sensor/data/x", "interval": "slow", "duration": 5}, headers=auth)
         assert r.status_code == 503
         check(doc, "POST", "/api/v1/apps/temp_sensor/cyclic-subscriptions", r)
 

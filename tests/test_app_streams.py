@@ -179,6 +179,44 @@ def test_a_head_of_an_event_stream_answers_its_headers_and_opens_nothing(gw):
         ros.close()
 
 
+TOKEN = "streams-test-token-0123456789"
+
+
+def test_with_an_api_token_only_its_holder_makes_changes_or_ends_subscriptions(robot):
+    """Issue 18: DELETE and PUT needed no token, so anyone who could list the ids could end another
+    client's stream.  With a token, POST, PUT and DELETE need it (401 without, 403 wrong, and
+    nothing changes); reads, the event stream among them, stay as open as data reads."""
+    gw = start_gateway("--api-token", TOKEN)
+    try:
+        auth = {"Authorization": f"Bearer {TOKEN}"}
+        collection = gw.api + BASE
+        body = {"resource": f"/api/v1/apps/{APP}/data{TOPIC}", "interval": "slow", "duration": 60}
+        for headers, status, code in (({}, 401, "unauthorized"), ({"Authorization": "Bearer wrong"}, 403, "forbidden"),
+                                      ({"Authorization": f"Basic {TOKEN}"}, 401, "unauthorized")):
+            r = requests.post(collection, json=body, headers=headers, timeout=10)
+            assert r.status_code == status and r.json()["error_code"] == code, r.text
+        assert r.headers["WWW-Authenticate"].startswith("Bearer")
+        assert requests.get(collection, timeout=10).json()["items"] == []      # nothing was made
+        r = requests.post(collection, json=body, headers=auth, timeout=10)
+        assert r.status_code == 201, r.text
+        sub = r.json()
+        url = f"{collection}/{sub['id']}"
+        assert requests.get(url, timeout=10).status_code == 200                  # reads need no token
+        with open_stream(gw, sub) as stream:
+            assert "payload" in stream.next(timeout=5)
+            for headers, status in (({}, 401), ({"Authorization": "Bearer wrong"}, 403)):
+                assert requests.put(url, json={"interval": "fast"}, headers=headers, timeout=10).status_code == status
+                assert requests.delete(url, headers=headers, timeout=10).status_code == status
+            assert requests.get(url, timeout=10).json()["interval"] == "slow"   # unchanged, and alive:
+            assert "payload" in stream.next(timeout=5)
+            r = requests.put(url, json={"interval": "normal"}, headers=auth, timeout=10)
+            assert r.status_code == 200 and r.json()["interval"] == "normal"
+            assert requests.delete(url, headers=auth, timeout=10).status_code == 204
+            assert stream.ended(timeout=3)
+    finally:
+        gw.stop()
+
+
 def _worker_of(gw, local_port: int) -> int:
     """The pid of the HTTP worker holding the connection from ``local_port``."""
     def find():

@@ -110,10 +110,17 @@ def none_left(gw: Gateway, app: str) -> None:
     poll_until(lambda: subscriptions(gw, app) == [], 10, message=f"no subscription of {app} left")
 
 
+def sign_in(tab) -> None:
+    """Give the page the gateway's token (in its header): it makes its subscriptions with it."""
+    expect(tab.locator("#token")).to_be_visible()
+    tab.fill("#token", TOKEN)
+
+
 def open_temperature(gw: Gateway, tab):
     """Open the demo's engine temperature (no earlier page's subscription left): its live value."""
     none_left(gw, "temp_sensor")
     tab.goto(gw.url + "/ui/#/apps/temp_sensor/data/powertrain/engine/temperature")
+    sign_in(tab)
     value = leaf(tab, "temperature")
     expect(value).to_have_text(NUMBER)
     return value
@@ -128,6 +135,7 @@ def test_the_tree_lists_the_demo_and_filters_by_topic_or_node(gw, page):
     tab, _ = page
     response = tab.goto(gw.url + "/")
     assert tab.url == gw.url + "/ui/"
+    sign_in(tab)
     headers = response.all_headers()
     assert "default-src 'self'" in headers["content-security-policy"]
     assert headers["x-content-type-options"] == "nosniff"
@@ -160,6 +168,12 @@ def test_a_live_value_changes_on_screen_and_its_fields_plot(gw, page, tmp_path):
     tab, _ = page
     none_left(gw, "pressure_sensor")
     tab.goto(gw.url + "/ui/#/apps/pressure_sensor/data/chassis/brakes/pressure")
+    # The gateway wants a token to make a subscription: the view waits for it, and asks nothing.
+    badge = tab.locator("#item .item-controls .badge")
+    expect(badge).to_have_text("waiting for the token")
+    expect(tab.locator("#item .stream-detail")).to_contain_text("bearer token")
+    assert subscriptions(gw, "pressure_sensor") == []
+    sign_in(tab)
     value = leaf(tab, "fluid_pressure")
     expect(value).to_have_text(NUMBER)
     first = value.text_content()
@@ -207,6 +221,7 @@ def test_an_image_topic_is_drawn_and_leaving_the_page_ends_its_stream(gw, page):
     tab, watch = page
     none_left(gw, "camera")
     tab.goto(gw.url + "/ui/#/apps/camera/data/perception/camera/image_raw")
+    sign_in(tab)
     tab.wait_for_function("() => Number(document.querySelector('#item canvas.image')?.dataset.drawn) >= 1")
     image = tab.evaluate("""() => {
         const c = document.querySelector('#item canvas.image');
@@ -313,6 +328,7 @@ def test_non_finite_floats_are_shown_and_plotted_as_such(gw, page):
     tab, _ = page
     none_left(gw, "battery_monitor")
     tab.goto(gw.url + "/ui/#/apps/battery_monitor/data/power/battery")
+    sign_in(tab)
     expect(leaf(tab, "voltage")).to_have_text(NUMBER)
     # The demo's battery does not measure its temperature: NaN, which JSON cannot carry (the
     # gateway sends "NaN", or null, in a float field).
@@ -355,7 +371,8 @@ def test_a_stream_that_ends_is_replaced_by_itself(gw, page):
     value = open_temperature(gw, tab)
     (first,) = subscriptions(gw, "temp_sensor")
     # Another client deletes it (as expiry would end it): the gateway ends the stream at once.
-    r = requests.delete(f"{gw.api}/apps/temp_sensor/cyclic-subscriptions/{first['id']}", timeout=10)
+    r = requests.delete(f"{gw.api}/apps/temp_sensor/cyclic-subscriptions/{first['id']}", timeout=10,
+                        headers={"Authorization": f"Bearer {TOKEN}"})
     assert r.status_code == 204
     again = poll_until(lambda: subscriptions(gw, "temp_sensor"), 15, message="a new subscription")
     assert [s["id"] for s in again] != [first["id"]] and len(again) == 1
@@ -368,6 +385,7 @@ def test_the_subscription_is_renewed_before_it_expires(gw, page):
     none_left(gw, "odometry")
     tab.clock.install()               # the page's timers, under the test's control
     tab.goto(gw.url + "/ui/#/apps/odometry/data/chassis/odom")
+    sign_in(tab)
     expect(leaf(tab, "pose.pose.position.x")).to_have_text(NUMBER)
     (sub,) = subscriptions(gw, "odometry")
     tab.clock.fast_forward("01:01")   # past half its duration (120 s)
@@ -422,6 +440,7 @@ def test_the_dashboard_works_under_a_path_prefix_behind_nginx(gw, page, tmp_path
     try:
         tab.goto(nginx.url + "/robot/")
         assert tab.url == nginx.url + "/robot/ui/"
+        sign_in(tab)
         expect(tab.locator("a.topic[data-topic='/powertrain/engine/temperature']").first).to_be_attached()
         tab.evaluate("location.hash = '#/apps/temp_sensor/data/powertrain/engine/temperature'")
         value = leaf(tab, "temperature")

@@ -79,7 +79,16 @@ def authorize_publish() -> None:
     if not cfg.allow_publish:
         raise ApiError(403, "forbidden", "Publishing is disabled on this gateway",
                        {"details": "start the gateway with --allow-publish to enable PUT"})
-    token = cfg.api_token
+    authorize_change()
+
+
+def authorize_change() -> None:
+    """With an API token configured: 401 without it, 403 with a wrong one (else nothing to check).
+
+    Every request that changes the gateway's or the robot's state on a client's behalf asks
+    this (publishing, making, changing and deleting cyclic subscriptions); reads never do.
+    """
+    token = config().api_token
     if not token:
         return
     scheme, _, given = request.headers.get("Authorization", "").partition(" ")

@@ -24,6 +24,7 @@ from .. import rosclient, streams
 from ..entities import API_BASE
 from ..errors import ApiError
 from .common import config, json_response, lookup
+from .requests import authorize_change
 
 bp = Blueprint("subscriptions", __name__, url_prefix=API_BASE)
 
@@ -163,6 +164,7 @@ def _known(sub_id: str) -> None:
 
 @bp.post(ENTITY + "/cyclic-subscriptions")
 def create(collection: str, entity_id: str):
+    authorize_change()
     entity = lookup(collection, entity_id)
     body = _body()
     protocol = body.get("protocol", "sse")
@@ -195,6 +197,7 @@ def detail(collection: str, entity_id: str, sub_id: str):
 
 @bp.put(ENTITY + "/cyclic-subscriptions/<sub_id>")
 def update(collection: str, entity_id: str, sub_id: str):
+    authorize_change()
     entity = lookup(collection, entity_id)
     body = _body()
     interval = _interval(body, required=False)
@@ -207,6 +210,7 @@ def update(collection: str, entity_id: str, sub_id: str):
 
 @bp.delete(ENTITY + "/cyclic-subscriptions/<sub_id>")
 def delete(collection: str, entity_id: str, sub_id: str):
+    authorize_change()
     entity = lookup(collection, entity_id)
     _known(sub_id)
     _call("sub_delete", {"collection": collection, "entity_id": entity.id, "id": sub_id}, sub_id)

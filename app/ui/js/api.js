@@ -10,6 +10,22 @@ export const API_PREFIX = "/api/v1/";
 export const API_BASE = new URL("../api/v1/", document.baseURI);
 const REQUEST_TIMEOUT_MS = 10000;
 
+// The bearer token, when the gateway wants one (GET /api/v1/ says so: capabilities.authentication).
+// It is kept in this module's memory only, for the life of the page: never in storage, never in a
+// URL.  Every request but a read carries it: the gateway asks it for publishing and for making,
+// changing and deleting cyclic subscriptions.  setToken() tells the page ("sovd-token").
+let token = "";
+
+export function getToken() {
+  return token;
+}
+
+export function setToken(value) {
+  if (value === token) return;
+  token = value;
+  window.dispatchEvent(new CustomEvent("sovd-token", { detail: { token } }));
+}
+
 /** The fetchable URL of an API path ("/api/v1/apps/x" or "apps/x"). */
 export function url(path) {
   if (path.startsWith(API_PREFIX)) path = path.slice(API_PREFIX.length);
@@ -34,6 +50,7 @@ export async function request(method, path, { body, headers = {}, timeout = REQU
                                               keepalive = false } = {}) {
   const init = { method, headers: { Accept: "application/json", ...headers }, keepalive,
                  signal: AbortSignal.timeout(timeout) };
+  if (token && method !== "GET" && !init.headers.Authorization) init.headers.Authorization = `Bearer ${token}`;
   if (body !== undefined) {
     init.body = JSON.stringify(body);
     init.headers["Content-Type"] = "application/json";

@@ -8,7 +8,7 @@
 // HIDDEN_CLOSE_MS gives its stream back; it opens a new one when it is shown again.  destroy()
 // ends the stream (DELETE) when the user leaves the view or the page.
 
-import { describe, get } from "./api.js";
+import { describe, get, getToken } from "./api.js";
 import { fill, formatAge, h } from "./dom.js";
 import { IMAGE_TYPE, ImageCanvas } from "./image.js";
 import { JsonTree, numericValue, pathText, valueAt } from "./jsontree.js";
@@ -57,6 +57,9 @@ export class ItemView {
     this.destroyed = false;
     this.timers = [];
     this.onVisibility = () => this._visibility();
+    this.onToken = () => {
+      if (!this.sub && !this.destroyed && !document.hidden && getToken()) this._subscribe();
+    };
   }
 
   async start() {
@@ -102,6 +105,7 @@ export class ItemView {
       });
     }
     document.addEventListener("visibilitychange", this.onVisibility);
+    window.addEventListener("sovd-token", this.onToken);
     this.timers.push(setInterval(() => this._schedule(), 1000)); // the age goes on when frames stop
     this._subscribe();
   }
@@ -146,6 +150,12 @@ export class ItemView {
   }
 
   _subscribe() {
+    if (this.capabilities.authentication && !getToken()) {
+      // The gateway wants the token to make a subscription: wait for it (onToken), unrefused.
+      this._streamState("waiting");
+      this.streamDetail.textContent = "live values need the gateway's bearer token (top of the page)";
+      return;
+    }
     const query = this.type === IMAGE_TYPE ? "?bytes=base64" : "";
     this.sub = new Subscription(this.entityPath, `${this.dataPath}${query}`, this.interval, {
       onFrame: (frame) => this._frame(frame),
@@ -156,7 +166,8 @@ export class ItemView {
 
   _streamState(state, detail) {
     if (this.destroyed) return;
-    const labels = { connecting: "connecting", live: "live", retrying: "reconnecting", closed: "closed" };
+    const labels = { connecting: "connecting", live: "live", retrying: "reconnecting", closed: "closed",
+                     waiting: "waiting for the token" };
     this.streamEl.dataset.state = state;
     this.streamEl.textContent = labels[state] || state;
     this.streamDetail.textContent = state === "retrying" && detail ? describe(detail) : "";
@@ -299,6 +310,8 @@ export class ItemView {
     for (const timer of this.timers) clearInterval(timer);
     clearTimeout(this.hiddenTimer);
     document.removeEventListener("visibilitychange", this.onVisibility);
+    window.removeEventListener("sovd-token", this.onToken);
+    if (this.publish) this.publish.destroy();
     const sub = this.sub;
     this.sub = null;
     return sub ? sub.close({ unloading }) : Promise.resolve();

@@ -6,7 +6,7 @@
 // DELETE is then sent as a keepalive request).  The tree is reloaded by its button, after the ROS
 // worker comes back from an outage, and every TREE_RELOAD_MS while the gateway is healthy.
 
-import { describe, get } from "./api.js";
+import { describe, get, getToken, setToken } from "./api.js";
 import { fill, h } from "./dom.js";
 import { HealthPanel } from "./health.js";
 import { ItemView } from "./item.js";
@@ -29,6 +29,7 @@ async function loadOverview() {
     capabilities = overview.capabilities || {};
     $("gateway-version").textContent = `${overview.version}` +
       (capabilities.publishing ? " · publishing on" : " · read-only");
+    $("token").hidden = !capabilities.authentication;
     overviewLoaded = true;
   } catch (error) {
     $("gateway-version").textContent = `overview not loaded: ${describe(error)}`;
@@ -66,6 +67,11 @@ window.addEventListener("sovd-health", (event) => {
   }
 });
 $("tree-reload").addEventListener("click", () => tree.load());
+// The gateway's bearer token, when it wants one (api.js keeps it; a publish form shows the same).
+$("token").addEventListener("input", () => setToken($("token").value));
+window.addEventListener("sovd-token", () => {
+  if ($("token").value !== getToken()) $("token").value = getToken();
+});
 setInterval(() => {
   if (health.state === "healthy" && !document.hidden && Date.now() - tree.loadedAt >= TREE_RELOAD_MS) tree.load();
 }, 1000);

@@ -6,13 +6,12 @@
 // otherwise, so that the gateway's own check answers, naming the field.  The gateway's JSON
 // errors are shown next to the field they name: "data.header.stamp.sec: ..." next to that input,
 // parameters.field ("type", "data") next to that part, 401/403 for the token next to the token.
-// The bearer token is kept in this module's memory only: never in storage, never in the URL.
+// The token field is the page's one bearer token (api.js): what is typed here is what the page
+// sends, and it shows what was typed in the page's header.
 
-import { ApiError, request } from "./api.js";
+import { ApiError, getToken, request, setToken } from "./api.js";
 import { h } from "./dom.js";
 import { isNumberSchema } from "./jsontree.js";
-
-let token = "";  // in memory for the life of the page, shared by every item's form
 
 const NUMBER = /^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$/;
 const FIELD_IN_MESSAGE = /^(data(?:\.[A-Za-z_][A-Za-z0-9_]*|\[\d+\])*)\s*:/;
@@ -44,8 +43,12 @@ export class PublishForm {
     this.tokenInput = null;
     if (authentication) {
       this.tokenInput = h("input", { type: "password", name: "token", autocomplete: "off", spellcheck: "false",
-                                     placeholder: "bearer token", value: token });
-      this.tokenInput.addEventListener("input", () => { token = this.tokenInput.value; });
+                                     placeholder: "bearer token", value: getToken() });
+      this.tokenInput.addEventListener("input", () => setToken(this.tokenInput.value));
+      this.onToken = () => {
+        if (this.tokenInput.value !== getToken()) this.tokenInput.value = getToken();
+      };
+      window.addEventListener("sovd-token", this.onToken);
       this.tokenRow = this._row("token", "token", this.tokenInput);
     }
     this.button = h("button", { type: "submit" }, "Publish");
@@ -160,6 +163,10 @@ export class PublishForm {
     return best;
   }
 
+  destroy() {
+    if (this.onToken) window.removeEventListener("sovd-token", this.onToken);
+  }
+
   async submit() {
     this._clearErrors();
     const problems = [];
@@ -168,12 +175,10 @@ export class PublishForm {
       for (const [path, message] of problems) this._fieldError(path, message);
       return;
     }
-    const headers = {};
-    if (token) headers.Authorization = `Bearer ${token}`;
     this.button.disabled = true;
     this.status.textContent = "publishing…";
     try {
-      const answer = await request("PUT", this.dataPath, { body: { type: this.type, data }, headers });
+      const answer = await request("PUT", this.dataPath, { body: { type: this.type, data } });
       const ext = answer["x-medkit"] || {};
       this.status.className = "form-status ok";
       this.status.textContent = `Published to ${ext.subscriber_count ?? 0} subscriber(s).` +
