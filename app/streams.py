@@ -11,8 +11,10 @@ no thread per stream.
   and hands it to every stream watching that key.  Control frames retime,
   re-key or end streams; heartbeats and the socket's connect/disconnect
   events tell whether the ROS worker is there.
-- Each stream is a bounded buffer (``STREAM_BUFFER`` frames, the oldest
-  dropped first: latest-value semantics) drained by its response generator,
+- Each stream is a bounded buffer (``STREAM_BUFFER`` frames and
+  ``STREAM_BUFFER_BYTES``, the oldest dropped first: latest-value semantics)
+  and a connection whose kernel send buffer is ``STREAM_SNDBUF``, drained by
+  its response generator,
   which also sends a ``:`` keep-alive comment after ``KEEPALIVE`` seconds of
   silence and ends the stream at its expiry.  A client that stops reading
   only ever holds a few frames; it never slows the others; and one that
@@ -35,6 +37,7 @@ import collections
 import errno
 import logging
 import os
+import socket
 import time
 from collections.abc import Callable, Iterator
 from datetime import UTC, datetime
@@ -54,6 +57,14 @@ from . import metrics, rosclient, samples
 log = logging.getLogger("sovd.http.streams")
 
 STREAM_BUFFER = 4          # frames a stream holds for a slow client; the oldest go first
+# ... and bytes: past this, older frames go too (the newest is always kept).  An image stream's
+# frame is a megabyte or more; a slow client holds one of them here, not four.
+STREAM_BUFFER_BYTES = 1 << 20
+# SO_SNDBUF of a stream's connection (Linux doubles it for its bookkeeping).  Left to itself the
+# kernel grows a send buffer to megabytes for a client that does not read: without this, one
+# stalled reader of an image stream held 3 MB in the kernel, beside what STREAM_BUFFER holds.
+# 128 KiB in flight still carries 100 MB/s at a LAN's 1 ms round trip.
+STREAM_SNDBUF = 128 * 1024
 KEEPALIVE = 15.0           # seconds of silence before a ":" comment line
 TICK = 0.05                # seconds between the ticker's rounds
 HEARTBEAT_LOST = 3.0       # seconds without a heartbeat before the ROS worker counts as gone
@@ -105,6 +116,7 @@ class Stream:
         self.interval: str = sub["interval"]
         self.expires = time.monotonic() + max(0.0, (sub["expires_at_ns"] - time.time_ns()) / 1e9)
         self.frames: collections.deque[bytes] = collections.deque()
+        self.buffered = 0          # bytes in ``frames``
         self.wake = gevent.event.Event()
         self.ended = False
         self.last_frame = time.monotonic()
@@ -117,11 +129,12 @@ class Stream:
     def push(self, chunk: bytes) -> None:
         if self.ended:
             return
-        if len(self.frames) >= STREAM_BUFFER:
-            self.frames.popleft()
+        self.frames.append(chunk)
+        self.buffered += len(chunk)
+        while len(self.frames) > STREAM_BUFFER or (self.buffered > STREAM_BUFFER_BYTES and len(self.frames) > 1):
+            self.buffered -= len(self.frames.popleft())
             self.hub.counters["frames_dropped"] += 1
             self.hub.prom.frames_dropped.inc()
-        self.frames.append(chunk)
         self.last_frame = time.monotonic()
         self.wake.set()
 
@@ -150,6 +163,7 @@ class Stream:
             while True:
                 if self.frames:
                     chunk = self.frames.popleft()
+                    self.buffered -= len(chunk)
                     hub.counters["frames_sent"] += 1
                     hub.prom.frames_sent.inc()
                     stalled.start()
@@ -479,14 +493,21 @@ def get() -> StreamHub:
     return current_app.extensions[EXTENSION].get()
 
 
-def body(sub: dict[str, Any]) -> Iterator[bytes]:
+def body(sub: dict[str, Any], environ: dict[str, Any]) -> Iterator[bytes]:
     """The body of one ``.../events`` response for ``sub`` (a ``sub_get`` answer).
 
     Nothing happens until the server iterates it (not even this process's hub
     being made): a HEAD, whose body is never iterated, opens no stream.
     """
-    return _serve(current_app.extensions[EXTENSION], sub)  # the app is looked up now, in the request
+    # The app and the connection are looked up now, in the request.
+    return _serve(current_app.extensions[EXTENSION], sub, environ.get("gunicorn.socket"))
 
 
-def _serve(per_process: _PerProcess, sub: dict[str, Any]) -> Iterator[bytes]:
+def _serve(per_process: _PerProcess, sub: dict[str, Any], sock: Any) -> Iterator[bytes]:
+    if sock is not None:  # gunicorn's connection (not there under a test client)
+        # The connection keeps this buffer after the stream if it is used again (keep-alive).
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, STREAM_SNDBUF)
+        except OSError as exc:
+            log.warning("could not bound a stream's send buffer: %s", exc)
     yield from Stream(per_process.get(), sub).body()

@@ -20,7 +20,7 @@ import psutil
 import pytest
 import requests
 
-from app.streams import SILENT_CHECK
+from app.streams import SILENT_CHECK, STREAM_BUFFER_BYTES, STREAM_SNDBUF, Stream, StreamHub
 from tests.support.gateway import Gateway
 from tests.support.metrics import families, value
 from tests.support.procs import RosNode, poll_until
@@ -284,6 +284,52 @@ def test_a_slow_reader_neither_slows_the_others_nor_grows_memory(gw):
             s.close()
         for sub in (camera, temperature):
             requests.delete(gw.api + f"{BASE}/{sub['id']}", timeout=10)
+
+
+def _send_queue(server_port: int, client_port: int) -> int | None:
+    """Bytes the kernel holds to send on the server's end of a loopback connection (tx_queue of
+    /proc/net/tcp: written by the server, not yet acknowledged by the client), None if it is gone."""
+    with open("/proc/net/tcp") as fh:
+        for line in fh.read().splitlines()[1:]:
+            fields = line.split()
+            local, remote = (int(f.rsplit(":", 1)[1], 16) for f in fields[1:3])
+            if (local, remote) == (server_port, client_port):
+                return int(fields[4].split(":")[0], 16)
+    return None
+
+
+def test_what_a_reader_that_never_reads_holds_in_the_kernel_is_bounded(gw):
+    """Issue 18: a stalled reader of an image stream held 3 MB in the kernel's send queue while
+    the stream's buffer was said to hold "4 frames"; the connection's SO_SNDBUF now bounds it."""
+    camera = subscribe(gw, "fast", resource=f"/api/v1/apps/{APP}/data/s/camera?bytes=base64")
+    stalled = open_stream(gw, camera, recv_buffer=4096)     # it never reads: frames are ~1.2 MB each
+    try:
+        port = stalled.local_port
+        poll_until(lambda: (_send_queue(gw.port, port) or 0) >= 16 * 1024, 10, message="bytes queued")
+        # The queue fills within a frame or two; watch it until the stalled reader is cut (SEND_TIMEOUT).
+        peak, until = 0, time.monotonic() + SEND_TIMEOUT - 0.5
+        while time.monotonic() < until and (queued := _send_queue(gw.port, port)) is not None:
+            peak = max(peak, queued)
+            time.sleep(0.05)
+        assert 16 * 1024 <= peak <= 2 * STREAM_SNDBUF + 64 * 1024, peak   # Linux doubles SO_SNDBUF
+    finally:
+        stalled.close()
+        requests.delete(gw.api + f"{BASE}/{camera['id']}", timeout=10)
+
+
+def test_a_streams_buffer_is_bounded_in_bytes_as_well_as_frames():
+    """The hub's side of a slow reader, alone (no socket: the hub is not started): four small
+    frames are kept, but of megabyte frames only the newest."""
+    hub = StreamHub("/nonexistent", report=lambda counters: None, lookup=lambda stream: {})
+    sub = {"id": "sub_0123456789abcdef", "collection": "apps", "entity_id": APP, "topic": TOPIC,
+           "key": b"d|fast|array|/s/temperature|", "interval": "fast", "expires_at_ns": time.time_ns() + 10**10}
+    small, large = Stream(hub, sub), Stream(hub, sub)
+    for n in range(10):
+        small.push(b"%d" % n * 100)
+        large.push(b"%d" % n * (STREAM_BUFFER_BYTES // 2 + 1))
+    assert [f[:1] for f in small.frames] == [b"6", b"7", b"8", b"9"] and small.buffered == 400
+    assert [f[:1] for f in large.frames] == [b"9"] and large.buffered == STREAM_BUFFER_BYTES // 2 + 1
+    assert hub.counters["frames_dropped"] == 6 + 9
 
 
 def test_two_hundred_streams_at_once(gw):

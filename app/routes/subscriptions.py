@@ -223,5 +223,5 @@ def events(collection: str, entity_id: str, sub_id: str):
     _known(sub_id)
     sub = _call("sub_get", {"collection": collection, "entity_id": entity.id, "id": sub_id}, sub_id)
     return current_app.response_class(
-        streams.body(sub), mimetype="text/event-stream",
+        streams.body(sub, request.environ), mimetype="text/event-stream",
         headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
