@@ -1,9 +1,11 @@
 """Cyclic subscriptions streamed over SSE through a real gateway, from real publishers.
 
 Cadence, payloads equal in shape to a GET, expiry, DELETE and PUT on a live
-stream, a subscription made through one HTTP worker and streamed through the
-other, a slow reader, 200 streams at once.  Faults (a ROS worker SIGKILL mid-
-stream, SIGTERM with open streams) are at the end, each on its own gateway.
+stream, a HEAD that opens nothing, who may change a subscription when a token
+is set, a subscription made through one HTTP worker and streamed through the
+other, a slow reader and what it holds in the kernel, 200 streams at once.
+Faults (a ROS worker SIGKILL mid-stream, SIGTERM with open streams, a retime
+whose ``updated`` event is lost) are at the end, each on its own gateway.
 """
 
 from __future__ import annotations
