@@ -1,8 +1,9 @@
 """CORS for browser tools served from other origins (flask-cors), off unless ``cors_origins`` is set.
 
 ``cors_origins`` (``ipc/settings.py``) is a comma-separated list of exact
-origins (``https://dashboard.example:8443``: scheme, host and port, compared
-as a whole, never as a prefix or pattern), or ``*`` for any origin.  With a
+origins (``https://dashboard.example:8443``, ``http://[fd00::10]:8443``: scheme,
+host and port, compared as a whole without case, never as a prefix or pattern:
+:func:`exact_patterns`), or ``*`` for any origin.  With a
 list, an allowed origin is echoed in ``Access-Control-Allow-Origin`` with
 ``Access-Control-Allow-Credentials: true`` (so a tool behind nginx's own
 authentication can send cookies or basic auth) and ``Vary: Origin``; with
@@ -20,6 +21,8 @@ page may read (``Access-Control-Expose-Headers``).
 """
 
 from __future__ import annotations
+
+import re
 
 from flask import Flask
 
@@ -39,6 +42,18 @@ def init_app(app: Flask) -> None:
     from flask_cors import CORS
 
     anyone = origins == "*"
-    CORS(app, origins="*" if anyone else list(origins), methods=METHODS, allow_headers=ALLOW_HEADERS,
+    CORS(app, origins="*" if anyone else exact_patterns(origins), methods=METHODS, allow_headers=ALLOW_HEADERS,
          expose_headers=EXPOSE_HEADERS, supports_credentials=not anyone, send_wildcard=anyone,
          max_age=MAX_AGE, vary_header=True)
+
+
+def exact_patterns(origins: tuple[str, ...]) -> list[re.Pattern[str]]:
+    """Each origin as a pattern that matches that origin alone, whole, without case.
+
+    flask-cors reads a plain string that holds any of ``*\\]?$^[]()`` as a
+    regular expression, matched as a prefix: ``http://[fd00::10]:8443`` became a
+    character class that let ``http://d:8443`` and ``http://0:8443`` in and kept
+    the configured IPv6 origin out.  Escaped and anchored, no origin is ever a
+    pattern, whatever characters it holds.
+    """
+    return [re.compile(re.escape(origin) + r"\Z", re.IGNORECASE) for origin in origins]

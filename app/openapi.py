@@ -242,6 +242,12 @@ ERRORS: dict[str, str] = {
             "(`x-medkit-cold-wait-cap-exceeded`, parameters `topic`, `cold_wait_cap`, `entity_id`, "
             "`topic_name`); retry after `Retry-After` seconds"),
     "504": "The ROS worker did not answer in time (`not-responding`)",
+    "408": ("The request body did not arrive within `body_timeout` (`invalid-request`); the connection "
+            "is closed"),
+    "413": ("Request body larger than `max_body_bytes` (`payload-too-large`, parameters "
+            "`max_body_bytes`), with a Content-Length or chunked"),
+    "415": ("The body is not declared `Content-Type: application/json` (`invalid-request`, parameters "
+            "`details`, `content_type`); parameters such as `charset` are allowed"),
     "429": ("Too many requests from this client, or from all clients together, while rate limiting is "
             "on (`rate-limit-exceeded`, parameters `retry_after`, `limit`, `reset`, `scope`); retry after "
             "`Retry-After` seconds"),
@@ -266,6 +272,11 @@ GENERIC_ERROR = {
     },
     "content": {"application/json": {"schema": ref("GenericError")}},
 }
+
+
+# What every operation that takes a JSON body may answer because of the body itself
+# (``app/routes/bodies.py``).
+BODY_ERRORS = ("408", "413", "415")
 
 
 def _error(description: str) -> dict[str, Any]:
@@ -320,10 +331,7 @@ def _entity_paths(collection: str) -> dict[str, Any]:
                  ("401", "An API token is configured and the request has none (`unauthorized`)"),
                  ("403", "Publishing is disabled (`--allow-publish` not given) or the token is wrong "
                          "(`forbidden`)"),
-                 "404", ("408", "The request body did not arrive within `body_timeout` (`invalid-request`); "
-                                "the connection is closed"),
-                 ("413", "Request body larger than `max_body_bytes` (`payload-too-large`)"),
-                 "500", "503", "504",
+                 "404", *BODY_ERRORS, "500", "503", "504",
                  parameters=[id_param, data_param],
                  requestBody={"required": True,
                               "content": {"application/json": {"schema": ref("DataWriteRequest")}}},
@@ -426,7 +434,8 @@ def _subscription_paths(collection: str) -> dict[str, Any]:
                "content": {"application/json": {"schema": ref("CyclicSubscription")}}}
     create = _op(f"create{title}CyclicSubscription", "Subscriptions",
                  f"Stream a data item of a {collection[:-1]} every interval (SSE)", None, bad, unauthorized,
-                 forbidden, not_found, full, "504", **token, parameters=params, requestBody={"required": True, "content": {"application/json": {
+                 forbidden, not_found, *BODY_ERRORS, full, "504", **token, parameters=params,
+                 requestBody={"required": True, "content": {"application/json": {
                      "schema": ref("CyclicSubscriptionCreateRequest")}}})
     create["responses"] = {"201": created, **create["responses"]}
     delete = _op(f"delete{title}CyclicSubscription", "Subscriptions", "Cancel a subscription; an open "
@@ -449,8 +458,9 @@ def _subscription_paths(collection: str) -> dict[str, Any]:
                        _ok("CyclicSubscription"), not_found, "503", "504", parameters=params + [sub_param]),
             "put": _op(f"update{title}CyclicSubscription", "Subscriptions", "Change interval and/or duration "
                        "(a new duration counts from now); applies to open streams",
-                       _ok("CyclicSubscription"), bad, unauthorized, forbidden, not_found, "503", "504",
-                       **token, parameters=params + [sub_param], requestBody={"required": True, "content": {
+                       _ok("CyclicSubscription"), bad, unauthorized, forbidden, not_found, *BODY_ERRORS,
+                       "503", "504", **token, parameters=params + [sub_param], requestBody={"required": True,
+                                                                                          "content": {
                            "application/json": {"schema": ref("CyclicSubscriptionUpdateRequest")}}}),
             "delete": delete,
         },

@@ -17,6 +17,7 @@ probe all import it.
 from __future__ import annotations
 
 import argparse
+import ipaddress
 import math
 import os
 import re
@@ -323,12 +324,23 @@ def parse_origins(text: str, name: str = "cors_origins") -> tuple[str, ...] | st
         if len(items) > 1:
             raise ConfigError(f"{name}: * allows every origin; give it alone, or list exact origins")
         return "*"
+    origins = []
     for item in items:
         m = _ORIGIN.match(item)
         if not m or (m.group(3) and not 0 < int(m.group(3)[1:]) < 65536):
             raise ConfigError(f"{name}: {item!r} is not an origin: scheme://host[:port] with http or "
                               "https, no path and no trailing slash (e.g. https://dashboard.example:8443)")
-    return tuple(dict.fromkeys(items))
+        host = m.group(1)
+        if host.startswith("["):
+            # An IPv6 literal, written as a browser writes it in Origin (lower case, zeros
+            # compressed): http://[FD00:0::10]:8443 is the origin http://[fd00::10]:8443.
+            try:
+                address = ipaddress.IPv6Address(host[1:-1])
+            except ValueError:
+                raise ConfigError(f"{name}: {item!r}: {host} is not an IPv6 address") from None
+            item = item.replace(host, f"[{address.compressed}]", 1)
+        origins.append(item)
+    return tuple(dict.fromkeys(origins))
 
 
 def default_runtime_dir(environ: dict[str, str] | os._Environ) -> str:

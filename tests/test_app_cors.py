@@ -6,6 +6,7 @@ The event streams' headers are checked through a real gateway in ``tests/test_fl
 from __future__ import annotations
 
 import pytest
+import requests
 
 from tests.support.fakeworker import ROBOT, FakeWorker, make_app
 
@@ -80,3 +81,47 @@ def test_off_by_default_no_cors_header_at_all(fw):
     for r in (client.get("/api/v1/apps", headers={"Origin": UI}),
               client.options("/api/v1/apps", headers={"Origin": UI, "Access-Control-Request-Method": "GET"})):
         assert not any(h in r.headers for h in CORS_HEADERS), dict(r.headers)
+
+
+IPV6_UI = "http://[fd00::10]:8443"
+# Origins that a pattern made of IPV6_UI would let in (a character class, a prefix), and neighbours.
+NOT_IPV6_UI = ["http://d:8443", "http://0:8443", "http://f:8443", "http://[fd00::10]:84430",
+               "http://[fd00::1]:8443", "https://[fd00::10]:8443", "http://[fd00::10]"]
+
+
+def test_an_ipv6_origin_is_an_exact_origin_not_a_pattern():
+    """Issue 18, defect 6: flask-cors read ``[fd00::10]`` as a regular expression's character class.
+
+    Through a real gateway: the configured IPv6 origin (as a browser writes it, and
+    as configured in another spelling) gets the CORS headers on a request and a
+    preflight; ``http://d:8443``, ``http://0:8443`` and the other neighbours get none.
+    """
+    from tests.support.gateway import Gateway
+
+    gw = Gateway("--cors-origins", f"http://[FD00:0::10]:8443,{UI}")  # another spelling of IPV6_UI
+    try:
+        for origin in (IPV6_UI, UI):
+            r = gw.get("/apps", headers={"Origin": origin})
+            assert r.status_code == 200
+            assert r.headers.get("Access-Control-Allow-Origin") == origin, dict(r.headers)
+            r = requests.options(gw.api + "/apps", headers={
+                "Origin": origin, "Access-Control-Request-Method": "POST",
+                "Access-Control-Request-Headers": "Content-Type"}, timeout=15)
+            assert r.headers.get("Access-Control-Allow-Origin") == origin, dict(r.headers)
+        for origin in NOT_IPV6_UI:
+            r = gw.get("/apps", headers={"Origin": origin})
+            assert r.status_code == 200
+            assert not any(h in r.headers for h in CORS_HEADERS), (origin, dict(r.headers))
+            r = requests.options(gw.api + "/apps", headers={"Origin": origin,
+                                                            "Access-Control-Request-Method": "POST"}, timeout=15)
+            assert "Access-Control-Allow-Origin" not in r.headers, (origin, dict(r.headers))
+    finally:
+        gw.stop()
+
+
+@pytest.mark.parametrize("origin", NOT_IPV6_UI + ["http://[fd00::10]:8443/", "http://[fd00::10]:8443.evil"])
+def test_no_configured_origin_is_read_as_a_pattern(fw, origin):
+    client = make_app(fw, cors_origins=f"{IPV6_UI},http://a.b:1").test_client()
+    assert client.get("/api/v1/apps", headers={"Origin": IPV6_UI}).headers["Access-Control-Allow-Origin"] == IPV6_UI
+    r = client.get("/api/v1/apps", headers={"Origin": origin})
+    assert not any(h in r.headers for h in CORS_HEADERS), dict(r.headers)

@@ -165,6 +165,8 @@ def test_every_route_answers_per_the_document(doc):
                  {"json": PUT_BODY, "headers": {"Authorization": "Bearer wrong"}}),
                 ("PUT", f"{base}/{target}/data/body/lights/cmd", {"data": b"nope", "headers": auth}),
                 ("PUT", f"{base}/{target}/data/body/lights/cmd",
+                 {"json": PUT_BODY, "headers": {**auth, "Content-Type": "text/plain"}}),
+                ("PUT", f"{base}/{target}/data/body/lights/cmd",
                  {"json": {"type": "bad", "data": {}}, "headers": auth}),
                 ("PUT", f"{base}/{target}/data/body/lights/cmd",
                  {"json": {"type": "std_msgs/msg/String", "data": {"data": "x" * 2000}}, "headers": auth}),
@@ -191,8 +193,10 @@ def test_every_route_answers_per_the_document(doc):
                 ("POST", base, {"json": good}), ("POST", base, {"json": good, "headers": wrong}),
                 ("GET", base, {}), ("GET", f"/api/v1/{collection}/bad.id/cyclic-subscriptions", {}),
                 ("GET", sub, {}), ("GET", base + "/sub_0000000000000000", {}),
+                ("POST", base, {"data": b"{}", "content_type": "text/plain", "headers": auth}),
                 ("PUT", sub, {"json": {"interval": "slow"}, "headers": auth}),
                 ("PUT", sub, {"json": {"duration": -1}, "headers": auth}),
+                ("PUT", sub, {"data": b'{"interval": "slow"}', "content_type": "text/plain", "headers": auth}),
                 ("PUT", base + "/sub_0000000000000000", {"json": {"interval": "slow"}, "headers": auth}),
                 ("PUT", sub, {"json": {"interval": "slow"}}), ("PUT", sub, {"json": {"interval": "slow"},
                                                                              "headers": wrong}),
@@ -232,13 +236,25 @@ def test_every_route_answers_per_the_document(doc):
     # Successes of entity routes were seen for every collection that has entities.
     assert 200 in seen["GET /apps/{app_id}/data/{data_id}"]
     assert 200 in seen["PUT /functions/{function_id}/data/{data_id}"]
-    assert {400, 401, 403, 413} <= seen["PUT /components/{component_id}/data/{data_id}"]
+    assert {400, 401, 403, 413, 415} <= seen["PUT /components/{component_id}/data/{data_id}"]
+    for op in ("POST /apps/{app_id}/cyclic-subscriptions", "PUT /apps/{app_id}/cyclic-subscriptions/{subscription_id}"):
+        assert 415 in seen[op], op
     for collection, relation in RELATIONS:  # each relation answered, and refused both ways
         param = "{" + collection[:-1] + "_id}"
         expected = {400, 404} if collection == "areas" else {200, 400, 404}
         assert seen[f"GET /{collection}/{param}/{relation}"] == expected
     assert seen["GET /apps/{app_id}/data/docs"] == {200}
     assert seen["GET /areas/{area_id}/docs"] == {404}
+
+
+def test_every_operation_with_a_json_body_documents_the_body_errors(doc):
+    """415 (not declared JSON), 413 (too large) and 408 (too slow): app/routes/bodies.py, on every body."""
+    with_body = [(method, path, op) for path, ops in doc["paths"].items() for method, op in ops.items()
+                 if "requestBody" in op]
+    assert len(with_body) == 10  # PUT data of 4 collections; POST and PUT cyclic-subscriptions of 3
+    for method, path, op in with_body:
+        assert list(op["requestBody"]["content"]) == ["application/json"], (method, path)
+        assert {"408", "413", "415"} <= set(op["responses"]), (method, path)
 
 
 def test_rate_limits_and_metrics_are_documented(doc):

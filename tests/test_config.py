@@ -107,6 +107,9 @@ def test_fleet_settings_are_off_by_default_and_work_from_every_source(tmp_path):
     assert config.parse_rate("2.5") == config.Rate(2.5, 3)  # no burst: the rate, rounded up
     assert config.parse_origins(cfg.cors_origins) == ("https://ui.example:8443", "http://localhost:3000")
     assert config.parse_origins("*") == "*"
+    # An IPv6 literal as a browser writes it in Origin: lower case, zeros compressed.
+    assert config.parse_origins("http://[FD00:0:0::10]:8443,https://[::1]") == (
+        "http://[fd00::10]:8443", "https://[::1]")
     assert cfg.access_log is True
     assert config.load(None, cfg.to_env()) == cfg
 
@@ -122,6 +125,7 @@ def test_fleet_settings_are_off_by_default_and_work_from_every_source(tmp_path):
     (["--cors-origins", "*.example.com"], {}, "is not an origin"),
     (["--cors-origins", "*,https://ui.example"], {}, "give it alone"),
     (["--cors-origins", "ftp://ui.example"], {}, "with http or https"),
+    (["--cors-origins", "http://[fd00:::10]:8443"], {}, "[fd00:::10] is not an IPv6 address"),
     ([], {"SOVD_ACCESS_LOG": "sometimes"}, "is not a valid bool"),
 ])
 def test_fleet_settings_refuse_bad_values_naming_the_source(argv, env, needle):

@@ -2,7 +2,8 @@
 
 - the topic addressed by ``{data_id}`` (three spellings, one topic);
 - the ``bytes`` query parameter;
-- for ``PUT``: who may publish (``allow_publish``, bearer token) and the body.
+- for ``PUT``: who may publish (``allow_publish``, bearer token) and the body (read and
+  parsed by ``bodies.json_object``, as every JSON body is).
 """
 
 from __future__ import annotations
@@ -12,19 +13,17 @@ import re
 from typing import Any
 from urllib.parse import unquote_to_bytes, urlsplit
 
-import orjson
-from flask import current_app, request
-from werkzeug.exceptions import HTTPException, RequestEntityTooLarge
+from flask import request
 
 from ipc import protocol
 from ipc.topics import InvalidTopic, normalize_topic
 
 from ..errors import ApiError
+from .bodies import json_object
 from .common import config
 
 _BAD_PERCENT = re.compile(r"%(?![0-9A-Fa-f]{2})")
 _MESSAGE_TYPE = re.compile(r"[A-Za-z][A-Za-z0-9_]*/msg/[A-Za-z][A-Za-z0-9_]*")
-_NON_FINITE_LITERAL = re.compile(rb"[:,\[]\s*-?(?:NaN|Infinity)\b")  # JavaScript's spellings
 MAX_TYPE_LENGTH = 256
 BYTES_MODES = ("array", "base64")
 # Room left in one IPC frame for the envelope around a published message.
@@ -105,58 +104,9 @@ def _field_error(message: str, field: str) -> ApiError:
     return ApiError(400, "invalid-request", message, {"field": field})
 
 
-def _read_body() -> bytes:
-    """The request body; 413 past ``MAX_CONTENT_LENGTH``, 400 when it cannot be read.
-
-    With a Content-Length Werkzeug refuses an oversized body before reading
-    it.  Without one (a chunked upload) Werkzeug would silently cut the body
-    at the limit, so one byte more than the limit is read to tell.  A body
-    that breaks its own framing (a bad chunk size, a chunk without its CRLF,
-    fewer bytes than announced) is the client's error, whatever exception the
-    server's reader uses to say so.
-    """
-    try:
-        return _read_limited_body()
-    except (RequestEntityTooLarge, HTTPException):
-        raise
-    except Exception as exc:  # gunicorn's NoMoreData, InvalidChunkSize, ChunkMissingTerminator …
-        raise ApiError(400, "invalid-request", "Request body could not be read",
-                       {"details": f"malformed request body ({type(exc).__name__})"}) from None
-
-
-def _read_limited_body() -> bytes:
-    if request.content_length is not None:
-        return request.get_data(cache=False)
-    limit = current_app.config["MAX_CONTENT_LENGTH"]
-    stream = request.environ.get("wsgi.input")
-    if stream is None or not request.environ.get("wsgi.input_terminated"):
-        return b""  # the server cannot say where an unsized body ends: treat it as empty
-    chunks, size = [], 0
-    while size <= limit:
-        chunk = stream.read(limit + 1 - size)
-        if not chunk:
-            break
-        chunks.append(chunk)
-        size += len(chunk)
-    if size > limit:
-        raise RequestEntityTooLarge()
-    return b"".join(chunks)
-
-
 def publish_body() -> tuple[str, dict[str, Any]]:
-    """``(type, data)`` of a PUT body, or the contract's 400/413."""
-    raw = _read_body()
-    try:
-        body = orjson.loads(raw)
-    except orjson.JSONDecodeError as exc:
-        details = str(exc)
-        if "infinity" in details or _NON_FINITE_LITERAL.search(raw):  # 1e999, or NaN/Infinity
-            details += '; JSON has no NaN or infinity: write them as "NaN", "Infinity", "-Infinity"'
-        raise ApiError(400, "invalid-request", "Request body is not valid JSON",
-                       {"details": details}) from None
-    if not isinstance(body, dict):
-        raise ApiError(400, "invalid-request", "Request body must be a JSON object",
-                       {"details": 'expected {"type": "pkg/msg/Name", "data": {...}}'})
+    """``(type, data)`` of a PUT body, or the contract's 415/413/400 (``bodies.json_object``)."""
+    body = json_object('{"type": "pkg/msg/Name", "data": {...}}')
     if "type" not in body:
         raise _field_error("type: missing required field", "type")
     if not isinstance(body["type"], str):

@@ -13,7 +13,6 @@ from datetime import UTC, datetime
 from typing import Any
 from urllib.parse import parse_qsl, unquote, urlsplit
 
-import orjson
 from flask import Blueprint, current_app, request
 
 from ipc.errors import IpcError
@@ -23,6 +22,7 @@ from ipc.topics import InvalidTopic, normalize_topic
 from .. import rosclient, streams
 from ..entities import API_BASE
 from ..errors import ApiError
+from .bodies import json_object
 from .common import config, json_response, lookup
 from .requests import authorize_change
 
@@ -46,14 +46,7 @@ def _vendor(code: str, message: str, params: dict[str, Any]) -> ApiError:
 
 
 def _body() -> dict[str, Any]:
-    try:
-        body = orjson.loads(request.get_data(cache=False))
-    except orjson.JSONDecodeError as exc:
-        raise ApiError(400, "invalid-request", "Request body is not valid JSON", {"details": str(exc)}) from None
-    if not isinstance(body, dict):
-        raise ApiError(400, "invalid-request", "Request body must be a JSON object",
-                       {"details": 'expected {"resource", "interval", "duration", "protocol"}'})
-    return body
+    return json_object('{"resource", "interval", "duration", "protocol"}')
 
 
 def _interval(body: dict[str, Any], required: bool) -> str | None:

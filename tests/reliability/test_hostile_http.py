@@ -367,17 +367,17 @@ def hand_made_cases(host: str) -> list[tuple[str, bytes, set[int], str]]:
         ("fixed array too long", put(pub("geometry_msgs/msg/PoseWithCovariance",
                                          {"covariance": [0.0] * 5000})), {400}, APP),
         ("key of 50000 characters", put(pub("std_msgs/msg/String", {"k" * 50000: 1})), {400}, APP),
-        # wrong content types: the body is JSON all the same
+        # wrong content types: refused (415) even when the body is JSON (app/routes/bodies.py)
         ("text/plain", put(pub("std_msgs/msg/String", {"data": "x"}), **{"Content-Type": "text/plain"}),
-         {200, 400, 415}, APP),
+         {415}, APP),
         ("form-urlencoded", put(b"type=std_msgs%2Fmsg%2FString&data=x",
-                                **{"Content-Type": "application/x-www-form-urlencoded"}), {400, 415}, APP),
+                                **{"Content-Type": "application/x-www-form-urlencoded"}), {415}, APP),
         ("multipart", put(b"--b\r\nContent-Disposition: form-data; name=\"type\"\r\n\r\nx\r\n--b--\r\n",
-                          **{"Content-Type": "multipart/form-data; boundary=b"}), {400, 415}, APP),
+                          **{"Content-Type": "multipart/form-data; boundary=b"}), {415}, APP),
         ("xml", put(b"<type>std_msgs/msg/String</type>", **{"Content-Type": "application/xml"}),
-         {400, 415}, APP),
+         {415}, APP),
         ("no content type", http_request("PUT", sink, pub("std_msgs/msg/String", {"data": "x"})),
-         {200, 400, 415}, APP),
+         {415}, APP),
         ("JSON with charset=utf-16", put(pub("std_msgs/msg/String", {"data": "x"}),
                                          **{"Content-Type": "application/json; charset=utf-16"}),
          {200, 400, 415}, APP),
@@ -426,33 +426,79 @@ def test_hand_made_hostile_requests(target):
     unharmed(gw, before, log_from)
 
 
-def test_malformed_chunked_bodies_are_refused_with_400_not_500(target):
-    """A chunked PUT body that breaks the chunked encoding is the client's error.
+def body_routes(gw, host: str) -> dict[str, tuple[str, str, bytes]]:
+    """``name: (method, path, a valid JSON body)`` of every route that takes a JSON body."""
+    base = f"/api/v1/components/{host}/cyclic-subscriptions"
+    resource = f"/api/v1/components/{host}/data/hostile/live"
+    sub = {"resource": resource, "interval": "slow", "duration": 60}
+    made = requests.post(gw.api + base.removeprefix("/api/v1"), json=sub, timeout=15)
+    assert made.status_code == 201, made.text
+    return {
+        "PUT data": ("PUT", f"/api/v1/components/{host}/data{SINK}", pub("std_msgs/msg/String", {"data": "x"})),
+        "POST cyclic-subscriptions": ("POST", base, json.dumps(sub).encode()),
+        "PUT cyclic-subscriptions": ("PUT", f"{base}/{made.json()['id']}", b'{"interval": "normal"}'),
+    }
 
-    BUG (found by this suite): ``app/routes/requests.py::_read_body`` reads
-    ``wsgi.input`` without catching gunicorn's parse errors
-    (``InvalidChunkSize``, ``ChunkMissingTerminator``, ``NoMoreData``), so the
-    catch-all handler answers 500 ``internal-error`` and logs "Unhandled
-    error" with a traceback for every such request.
+
+def subscriptions_of(gw, host: str) -> list[str]:
+    r = gw.get(f"/components/{host}/cyclic-subscriptions")
+    assert r.status_code == 200, r.text
+    return sorted(s["id"] for s in r.json()["items"])
+
+
+@pytest.mark.parametrize("route", ["PUT data", "POST cyclic-subscriptions", "PUT cyclic-subscriptions"])
+def test_every_json_body_route_refuses_bad_bodies_alike(target, route):
+    """One body reader (``app/routes/bodies.py``) for every route that takes a JSON body.
+
+    BUGS (issue 18, defects 3 and 9), on the subscription routes: a malformed
+    chunked body got 500 with a traceback in the log (PUT data: 400); a
+    chunked body past the limit was cut at the limit and got "not valid JSON"
+    instead of 413; and a body declared ``text/plain`` (what a page of another
+    web site may send without a preflight) was read as JSON and created a
+    subscription.
     """
     gw, host = target
+    method, path, good = body_routes(gw, host)[route]
+    subs_before = subscriptions_of(gw, host)
     log_from = len(gw.output)
-    head = (f"PUT /api/v1/components/{host}/data{SINK} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n"
-            "Transfer-Encoding: chunked\r\nContent-Type: application/json\r\n\r\n").encode()
-    bodies = {
-        "chunk size not hex": b"zz\r\nabc\r\n0\r\n\r\n",
-        "chunk shorter than its size": b"5\r\nabc\r\n0\r\n\r\n",
-        "chunk without its CRLF": b"3\r\nabcXX0\r\n\r\n",
-        "body ends inside a chunk": b"10\r\nabc",
+
+    def send(body: bytes, headers: dict[str, str]) -> tuple[int | None, dict[str, str], bytes]:
+        status, answer = raw_exchange(gw.port, http_request(method, path, body, headers), timeout=20)
+        return (status, *parse_answer(answer))
+
+    json_type = {"Content-Type": "application/json"}
+    is_chunked = {"Transfer-Encoding": "chunked", **json_type}
+    cases = {
+        # malformed chunked bodies: the client's error, 400
+        "chunk size not hex": (b"zz\r\nabc\r\n0\r\n\r\n", is_chunked, 400),
+        "chunk shorter than its size": (b"5\r\nabc\r\n0\r\n\r\n", is_chunked, 400),
+        "chunk without its CRLF": (b"3\r\nabcXX0\r\n\r\n", is_chunked, 400),
+        "body ends inside a chunk": (b"10\r\nabc", is_chunked, 400),
+        # past the limit: 413 whether sized or chunked, never a body cut at the limit
+        "Content-Length past the limit": (b" " * (LIMIT + 1), json_type, 413),
+        "chunked past the limit": (chunked(b" " * (4 * LIMIT)), is_chunked, 413),
+        # not declared JSON: 415, even when the body is valid JSON
+        "text/plain": (good, {"Content-Type": "text/plain"}, 415),
+        "text/plain chunked": (chunked(good), {"Content-Type": "text/plain", "Transfer-Encoding": "chunked"}, 415),
+        "form-urlencoded": (good, {"Content-Type": "application/x-www-form-urlencoded"}, 415),
+        "multipart": (good, {"Content-Type": "multipart/form-data; boundary=b"}, 415),
+        "no Content-Type": (good, {}, 415),
+        "a JSON-like type": (good, {"Content-Type": "application/jsonp"}, 415),
     }
     wrong = []
-    for name, body in bodies.items():
-        status, answer = raw_exchange(gw.port, head + body, timeout=20)
-        headers, payload = parse_answer(answer)
-        if status != 400 or problem(status, headers, payload):
-            wrong.append(f"{name}: {status} {payload[:120]!r}")
-    assert not wrong, "malformed chunked bodies: " + "; ".join(wrong)
-    assert "Unhandled error" not in "\n".join(gw.output[log_from:])
+    for name, (body, headers, expected) in cases.items():
+        status, headers_in, payload = send(body, headers)
+        if status != expected or problem(status, headers_in, payload):
+            wrong.append(f"{name}: {status} (expected {expected}) {payload[:160]!r}")
+        elif expected == 415 and json.loads(payload)["error_code"] != "invalid-request":
+            wrong.append(f"{name}: 415 with {payload[:160]!r}")
+    assert not wrong, f"{route}: " + "; ".join(wrong)
+    assert subscriptions_of(gw, host) == subs_before, "a refused body created a subscription"
+    # The same body, declared JSON (any case, with a charset), is accepted.
+    status, _, payload = send(good, {"Content-Type": "Application/JSON; charset=utf-8"})
+    assert status in (200, 201), payload[:300]
+    log = "\n".join(gw.output[log_from:])
+    assert "Unhandled error" not in log and "Traceback" not in log, log[-3000:]
 
 
 # --------------------------------------------------------------------------------- slow clients
