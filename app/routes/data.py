@@ -75,11 +75,15 @@ def read(collection: str, entity_id: str, data_id: str):
 
 @bp.put(ENTITY + "/data/<data_id:data_id>")
 def write(collection: str, entity_id: str, data_id: str):
+    # medkit's order: authentication (its pre-routing middleware; here with the gateway-wide
+    # publish switch), then the entity, so that a wrong route is named whatever the body,
+    # then the body.  The path's own syntax (entity id, topic name) is checked before the
+    # entity is looked up, as a read does: it needs no ROS worker.
     authorize_publish()
     check_entity_id(entity_id)
     topic = topic_from_data_id(data_id)
-    type_name, data = publish_body()
     entity = lookup(collection, entity_id)
+    type_name, data = publish_body()
     timeout = config().ipc_timeout
     try:
         # Not idempotent: sent once, never again after a timeout.
