@@ -135,8 +135,13 @@ SCHEMAS: dict[str, Any] = {
             ["entity_id", "timestamp", "ros2", "publisher_count", "subscriber_count", "status"],
             entity_id=ENTITY_ID,
             timestamp={**INT, "description": "ns since the epoch when the gateway received it (now without data)"},
-            ros2=_obj(["topic"], topic=STR, type=STR), publisher_count=INT, subscriber_count=INT,
+            ros2=_obj(["topic"], topic=STR,
+                      type={**STR, "description": "from the graph: the publishers' type, or the "
+                                                  "subscribers' on a topic without publishers"}),
+            publisher_count=INT, subscriber_count=INT,
             status={"enum": ["data", "metadata_only"]},
+            type_info={**_obj(["schema", "default_value"], schema=OBJ, default_value=OBJ),
+                       "description": "as in the data listing; only when the type is known and installed"},
             reason={"enum": ["not-in-graph", "no-publishers", "timeout", "unsupported-type",
                              "evicted", "shutdown"], "description": "only with metadata_only"},
         ),
@@ -316,7 +321,10 @@ def _entity_paths(collection: str) -> dict[str, Any]:
                                   "or base64 strings"}
     not_impl = ("501", "Not implemented for ROS 2 (`not-implemented`)")
     put_op = _op(f"put{title}DataItem", "Data", f"Publish one message to a topic through a {kind}",
-                 _ok("DataWriteResult", "Published"), "400",
+                 _ok("DataWriteResult", "Published"),
+                 ("400", ERRORS["400"] + "; a message type the topic's publishers and subscribers do not "
+                         "use (`invalid-parameter`, parameters `topic`, `type`, `topic_types`: nothing is "
+                         "published or created).  The entity is checked before the body, as medkit does"),
                  ("401", "An API token is configured and the request has none (`unauthorized`)"),
                  ("403", "Publishing is disabled (`--allow-publish` not given) or the token is wrong "
                          "(`forbidden`)"),
