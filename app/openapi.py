@@ -16,10 +16,12 @@ to one part of the tree (``GET /{collection}/docs`` and below, medkit's
 
 from __future__ import annotations
 
+import re
 from functools import lru_cache
 from typing import Any
 
 from .entities import API_BASE, COLLECTIONS, KINDS, PARAM_NAMES, RELATIONS
+from .routes import unimplemented
 
 SOVD_VERSION = "1.0.0"
 ENTITY_ID = {"type": "string", "pattern": "^[A-Za-z0-9_-]{1,256}$"}
@@ -475,6 +477,23 @@ METRICS_OP = _op(
     limited=False, servers=[{"url": "/", "description": "outside the API base: GET /metrics"}])
 
 
+def _not_implemented_paths() -> dict[str, Any]:
+    """medkit's routes this gateway does not serve (``app/routes/unimplemented.py``): each answers 501."""
+    out: dict[str, Any] = {}
+    for route, path, collection in unimplemented.paths():
+        params = [{"name": name, "in": "path", "required": True,
+                   "schema": ENTITY_ID if collection and name == PARAM_NAMES[collection] else STR}
+                  for name in re.findall(r"\{([^}]+)\}", path)]
+        feature = unimplemented.FEATURES[route.feature]
+        op_id = route.op.replace("{Kind}", unimplemented.KINDS[collection] if collection else "")
+        out.setdefault(path, {})[route.method.lower()] = _op(
+            op_id, feature.tag, route.summary + " (not implemented)", None,
+            ("501", f"Not implemented on this gateway (`not-implemented`, \"{feature.message}\", parameters "
+                    f"`feature`: `{route.feature}`), whatever the ids"),
+            parameters=params)
+    return out
+
+
 @lru_cache(maxsize=1)
 def _document() -> dict[str, Any]:
     paths: dict[str, Any] = {
@@ -492,6 +511,7 @@ def _document() -> dict[str, Any]:
     for collection in ("apps", "components", "functions"):
         paths.update(_subscription_paths(collection))
     paths.update(_docs_paths())
+    paths.update(_not_implemented_paths())
     paths["/metrics"] = {"get": METRICS_OP}
     return {
         "openapi": "3.1.0",
@@ -502,7 +522,9 @@ def _document() -> dict[str, Any]:
         "tags": [{"name": "Server", "description": "Gateway health, metadata, version info and docs"},
                  {"name": "Discovery", "description": "Entity discovery and hierarchy navigation"},
                  {"name": "Data", "description": "Read and write ROS 2 topic data"},
-                 {"name": "Subscriptions", "description": "Cyclic subscriptions: live data over SSE"}],
+                 {"name": "Subscriptions", "description": "Cyclic subscriptions: live data over SSE"},
+                 *({"name": f.tag, "description": f"Not implemented: 501 ({f.message})"}
+                   for f in unimplemented.FEATURES.values())],
         "paths": paths,
         "components": {
             "schemas": SCHEMAS, "responses": {"GenericError": GENERIC_ERROR},

@@ -10,13 +10,16 @@ import http.client
 import json
 import math
 import os
+import re
 import signal
 
 import jsonschema
 import psutil
 import pytest
+import requests
 
-from app.entities import host_component_id
+from app.entities import PARAM_NAMES, host_component_id
+from app.routes import unimplemented
 from tests.support.gateway import Gateway
 from tests.support.procs import RosNode, poll_until, publisher
 
@@ -255,6 +258,30 @@ def test_data_items_of_an_app(gw):
     cmd = next(i for i in comp["items"] if i["id"] == "/body/lights/cmd")
     assert cmd["x-medkit"]["member_ids"] == ["controller"]
     assert cmd["x-medkit"]["ros2"]["direction"] == "subscribe"
+
+
+def test_routes_not_served_here_are_501_not_404(gw):
+    """medkit's routes without a provider here answer 501 whatever the ids; a wrong id elsewhere stays 404."""
+    wait_for_apps(gw, {"temp_sensor"})
+    ids = {"apps": "temp_sensor", "components": HOST_ID, "areas": "nope", "functions": "powertrain"}
+    auth = {"Authorization": f"Bearer {TOKEN}"}
+    for route, path, collection in unimplemented.paths():
+        for real in (True, False):
+            concrete = path
+            if collection:
+                concrete = path.replace("{" + PARAM_NAMES[collection] + "}", ids[collection] if real else "no_such")
+            concrete = re.sub(r"\{[^}]+\}", "x1", concrete)
+            r = requests.request(route.method, gw.api + concrete, headers=auth, timeout=15)
+            assert r.status_code == 501, (route.method, concrete, r.text)
+            assert r.json() == {"error_code": "not-implemented",
+                                "message": unimplemented.FEATURES[route.feature].message,
+                                "parameters": {"feature": route.feature}}, concrete
+    caps = gw.get("/").json()["capabilities"]
+    assert [name for name in ("bulk_data", "locking", "scripts", "lifecycle", "updates") if caps[name]] == []
+    r = gw.get("/apps/temp_sensor/no-such-collection")
+    assert r.status_code == 404 and r.json()["error_code"] == "resource-not-found"
+    r = requests.post(gw.api + "/areas/nope/bulk-data/x1", timeout=15)
+    assert r.status_code == 405, r.text   # as medkit: bulk data is uploaded to components and apps only
 
 
 # ------------------------------------------------------------------ samples
