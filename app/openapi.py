@@ -16,10 +16,12 @@ to one part of the tree (``GET /{collection}/docs`` and below, medkit's
 
 from __future__ import annotations
 
+import re
 from functools import lru_cache
 from typing import Any
 
 from .entities import API_BASE, COLLECTIONS, KINDS, PARAM_NAMES, RELATIONS
+from .routes import unimplemented
 
 SOVD_VERSION = "1.0.0"
 ENTITY_ID = {"type": "string", "pattern": "^[A-Za-z0-9_-]{1,256}$"}
@@ -135,8 +137,13 @@ SCHEMAS: dict[str, Any] = {
             ["entity_id", "timestamp", "ros2", "publisher_count", "subscriber_count", "status"],
             entity_id=ENTITY_ID,
             timestamp={**INT, "description": "ns since the epoch when the gateway received it (now without data)"},
-            ros2=_obj(["topic"], topic=STR, type=STR), publisher_count=INT, subscriber_count=INT,
+            ros2=_obj(["topic"], topic=STR,
+                      type={**STR, "description": "from the graph: the publishers' type, or the "
+                                                  "subscribers' on a topic without publishers"}),
+            publisher_count=INT, subscriber_count=INT,
             status={"enum": ["data", "metadata_only"]},
+            type_info={**_obj(["schema", "default_value"], schema=OBJ, default_value=OBJ),
+                       "description": "as in the data listing; only when the type is known and installed"},
             reason={"enum": ["not-in-graph", "no-publishers", "timeout", "unsupported-type",
                              "evicted", "shutdown"], "description": "only with metadata_only"},
         ),
@@ -327,7 +334,10 @@ def _entity_paths(collection: str) -> dict[str, Any]:
                                   "or base64 strings"}
     not_impl = ("501", "Not implemented for ROS 2 (`not-implemented`)")
     put_op = _op(f"put{title}DataItem", "Data", f"Publish one message to a topic through a {kind}",
-                 _ok("DataWriteResult", "Published"), "400",
+                 _ok("DataWriteResult", "Published"),
+                 ("400", ERRORS["400"] + "; a message type the topic's publishers and subscribers do not "
+                         "use (`invalid-parameter`, parameters `topic`, `type`, `topic_types`: nothing is "
+                         "published or created).  The entity is checked before the body, as medkit does"),
                  ("401", "An API token is configured and the request has none (`unauthorized`)"),
                  ("403", "Publishing is disabled (`--allow-publish` not given) or the token is wrong "
                          "(`forbidden`)"),
@@ -482,6 +492,23 @@ METRICS_OP = _op(
     limited=False, servers=[{"url": "/", "description": "outside the API base: GET /metrics"}])
 
 
+def _not_implemented_paths() -> dict[str, Any]:
+    """medkit's routes this gateway does not serve (``app/routes/unimplemented.py``): each answers 501."""
+    out: dict[str, Any] = {}
+    for route, path, collection in unimplemented.paths():
+        params = [{"name": name, "in": "path", "required": True,
+                   "schema": ENTITY_ID if collection and name == PARAM_NAMES[collection] else STR}
+                  for name in re.findall(r"\{([^}]+)\}", path)]
+        feature = unimplemented.FEATURES[route.feature]
+        op_id = route.op.replace("{Kind}", unimplemented.KINDS[collection] if collection else "")
+        out.setdefault(path, {})[route.method.lower()] = _op(
+            op_id, feature.tag, route.summary + " (not implemented)", None,
+            ("501", f"Not implemented on this gateway (`not-implemented`, \"{feature.message}\", parameters "
+                    f"`feature`: `{route.feature}`), whatever the ids"),
+            parameters=params)
+    return out
+
+
 @lru_cache(maxsize=1)
 def _document() -> dict[str, Any]:
     paths: dict[str, Any] = {
@@ -499,6 +526,7 @@ def _document() -> dict[str, Any]:
     for collection in ("apps", "components", "functions"):
         paths.update(_subscription_paths(collection))
     paths.update(_docs_paths())
+    paths.update(_not_implemented_paths())
     paths["/metrics"] = {"get": METRICS_OP}
     return {
         "openapi": "3.1.0",
@@ -509,7 +537,9 @@ def _document() -> dict[str, Any]:
         "tags": [{"name": "Server", "description": "Gateway health, metadata, version info and docs"},
                  {"name": "Discovery", "description": "Entity discovery and hierarchy navigation"},
                  {"name": "Data", "description": "Read and write ROS 2 topic data"},
-                 {"name": "Subscriptions", "description": "Cyclic subscriptions: live data over SSE"}],
+                 {"name": "Subscriptions", "description": "Cyclic subscriptions: live data over SSE"},
+                 *({"name": f.tag, "description": f"Not implemented: 501 ({f.message})"}
+                   for f in unimplemented.FEATURES.values())],
         "paths": paths,
         "components": {
             "schemas": SCHEMAS, "responses": {"GenericError": GENERIC_ERROR},

@@ -14,13 +14,16 @@ Caches, per process and thread-safe:
   ``GRAPH_SINCE_MAX_AGE_S`` ago), because a restarted ROS worker counts its
   generations from 0 again and could answer "unchanged" for a different graph.
 - ``type_info`` per message type (a type that is not installed is asked again
-  after ``TYPE_INFO_NEGATIVE_TTL_S``).
+  after ``TYPE_INFO_NEGATIVE_TTL_S``), at most ``TYPE_INFO_CACHE_MAX`` types,
+  least recently used dropped first.  The data listing and every data read
+  use it, so a warm read adds no round trip for its ``type_info``.
 - the last ``stats`` answer, so that ``/health`` can show last known counters
   while the ROS worker is down.
 """
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import logging
 import os
@@ -29,6 +32,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import orjson
 from flask import Flask, current_app
 
 from ipc.client import RosWorkerClient
@@ -42,6 +46,7 @@ EXTENSION = "sovd_rosclient"
 GRAPH_REFRESH_S = 0.2
 GRAPH_SINCE_MAX_AGE_S = 1.0
 TYPE_INFO_NEGATIVE_TTL_S = 30.0
+TYPE_INFO_CACHE_MAX = 1024
 STATS_TIMEOUT_S = 0.3
 STATS_CONNECT_WAIT_S = 0.1
 # Errors after which a cached graph is still served (the worker is alive but busy).
@@ -65,7 +70,8 @@ class RosClient:
         self._checked = 0.0       # monotonic time of the last graph answer (or tolerated failure)
         self._fetched = 0.0       # monotonic time of the last graph answer
         # type_info cache: type -> (info or None, expires at)
-        self._types: dict[str, tuple[dict[str, Any] | None, float]] = {}
+        self._types: collections.OrderedDict[str, tuple[dict[str, Any] | None, float, bytes | None]] = \
+            collections.OrderedDict()
         self._last_stats: dict[str, Any] | None = None
 
     # ------------------------------------------------------------------ transport
@@ -165,6 +171,22 @@ class RosClient:
 
     # ------------------------------------------------------------------ type_info
 
+    def cached_type_info_json(self, type_name: str) -> bytes | None:
+        """:meth:`type_info_json` from the cache only (never a round trip): ``b""`` for a type
+        known not to be installed, None when the cache does not know the type (or it expired)."""
+        hit = self._types.get(type_name)
+        if hit is None or hit[1] <= time.monotonic():
+            return None
+        return hit[2] if hit[2] is not None else b""
+
+    def type_info_json(self, type_name: str, timeout: float | None = None) -> bytes | None:
+        """:meth:`type_info` already encoded as JSON (encoded once per type), or None."""
+        hit = self._types.get(type_name)
+        if hit is None or hit[1] <= time.monotonic():
+            self.type_info(type_name, timeout)
+            hit = self._types.get(type_name)
+        return hit[2] if hit is not None else None
+
     def type_info(self, type_name: str, timeout: float | None = None) -> dict[str, Any] | None:
         """``{schema, default_value}`` of a message type, or None when it is not installed.
 
@@ -173,17 +195,25 @@ class RosClient:
         """
         hit = self._types.get(type_name)
         if hit is not None and hit[1] > time.monotonic():
+            with contextlib.suppress(KeyError):  # another greenlet may have dropped it meanwhile
+                self._types.move_to_end(type_name)
             return hit[0]
         try:
             info = self.call("type_info", {"type": type_name}, timeout)
             value = {"schema": info.get("schema"), "default_value": info.get("default_value")}
-            self._types[type_name] = (value, float("inf"))
+            self._remember_type(type_name, value, float("inf"))
             return value
         except IpcError as exc:
             if exc.code in ("type-not-installed", "invalid-type"):
-                self._types[type_name] = (None, time.monotonic() + TYPE_INFO_NEGATIVE_TTL_S)
+                self._remember_type(type_name, None, time.monotonic() + TYPE_INFO_NEGATIVE_TTL_S)
                 return None
             raise
+
+    def _remember_type(self, type_name: str, value: dict[str, Any] | None, expires: float) -> None:
+        self._types[type_name] = (value, expires, None if value is None else orjson.dumps(value))
+        self._types.move_to_end(type_name)
+        while len(self._types) > TYPE_INFO_CACHE_MAX:
+            self._types.popitem(last=False)
 
     # ------------------------------------------------------------------ stats
 

@@ -18,8 +18,13 @@ from ipc.errors import IpcError
 from .errors import ApiError
 
 
-def body_parts(topic: str, result: dict[str, Any], entity_id: str) -> tuple[bytes, bytes, bytes]:
-    """``(head, data, tail)`` of the sample body; joined, they are the JSON document."""
+def body_parts(topic: str, result: dict[str, Any], entity_id: str,
+               type_info: bytes | None = None) -> tuple[bytes, bytes, bytes]:
+    """``(head, data, tail)`` of the sample body; joined, they are the JSON document.
+
+    ``type_info``: the type's ``{schema, default_value}`` already encoded as JSON
+    (``RosClient.type_info_json``), spliced in as ``x-medkit.type_info``.
+    """
     data = result.get("data_json")
     if not isinstance(data, bytes) or not data:
         data = b"{}"
@@ -40,7 +45,10 @@ def body_parts(topic: str, result: dict[str, Any], entity_id: str) -> tuple[byte
             ext["reason"] = result["reason"]
         data = b"{}"
     head = b'{"id":' + orjson.dumps(topic) + b',"data":'
-    tail = b',"x-medkit":' + orjson.dumps(ext) + b"}"
+    ext_json = orjson.dumps(ext)
+    if type_info:
+        ext_json = ext_json[:-1] + b',"type_info":' + type_info + b"}"
+    tail = b',"x-medkit":' + ext_json + b"}"
     return head, data, tail
 
 

@@ -7,8 +7,10 @@ no thread per stream.
 
 - The *reader* greenlet receives each data frame once per key (a topic at an
   interval and bytes mode), builds its SSE chunk once per entity (the payload
-  is exactly the body a GET of the resource answers, which names the entity)
-  and hands it to every stream watching that key.  Control frames retime,
+  is exactly the body a GET of the resource answers, which names the entity;
+  its ``type_info`` comes from the process's cache, filled when a stream
+  opens, so the reader never waits on IPC) and hands it to every stream
+  watching that key.  Control frames retime,
   re-key or end streams; heartbeats and the socket's connect/disconnect
   events tell whether the ROS worker is there.
 - Each stream is a bounded buffer (``STREAM_BUFFER`` frames and
@@ -216,6 +218,10 @@ class StreamHub:
         self._next_report = 0.0
         self._next_scan = 0.0
         self._last_payload: dict[tuple[bytes, str], tuple[float, bytes]] = {}
+        # x-medkit.type_info of a frame, as a GET has it: ``type_info`` answers from the process's
+        # cache only (the reader never waits on IPC); ``warm`` fills that cache when a stream opens.
+        self.type_info: Callable[[Any], bytes | None] = lambda _type: None
+        self.warm: Callable[[str], None] = lambda _topic: None
 
     # ---- lifecycle ------------------------------------------------------------------------
     def start(self) -> None:
@@ -250,6 +256,7 @@ class StreamHub:
     # ---- streams ----------------------------------------------------------------------------
     def register(self, stream: Stream) -> None:
         """Start feeding ``stream`` (called by its body, on its first iteration only)."""
+        self.warm(stream.topic)
         self._add(stream)
         self.by_id.setdefault(stream.id, set()).add(stream)
         self.counters["open_streams"] += 1
@@ -351,7 +358,8 @@ class StreamHub:
     def _chunk(self, stream: Stream, stamp: int, meta: dict[str, Any], data: bytes) -> bytes:
         if "error" in meta:
             return error_frame(stream, IpcError.from_wire(meta["error"]), stamp)
-        head, payload, tail = samples.body_parts(stream.topic, {**meta, "data_json": data}, stream.entity_id)
+        head, payload, tail = samples.body_parts(stream.topic, {**meta, "data_json": data}, stream.entity_id,
+                                                 self.type_info(meta.get("type")))
         return frame(stamp, payload=head + payload + tail)
 
     def _control(self, event: dict[str, Any]) -> None:
@@ -454,14 +462,45 @@ class _PerProcess:
         self.send_timeout = send_timeout
         self.hub: StreamHub | None = None
         self.pid: int | None = None
+        self._fetching: set[str] = set()
 
     def get(self) -> StreamHub:
         if self.pid != os.getpid():
             self.hub = StreamHub(self.runtime_dir, self._report, self._lookup, _worker_stopping,
                                  self.send_timeout)
+            self.hub.type_info = self._type_info
+            self.hub.warm = self._warm
             self.hub.start()
             self.pid = os.getpid()
         return self.hub
+
+    def _type_info(self, type_name: Any) -> bytes | None:
+        """The cached type_info of a frame's type; a miss is fetched in the background, once."""
+        if not isinstance(type_name, str):
+            return None
+        cached = self.ros.cached_type_info_json(type_name)
+        if cached is None and type_name not in self._fetching:
+            self._fetching.add(type_name)
+            gevent.spawn(self._fetch, type_name)
+        return cached or None
+
+    def _fetch(self, type_name: str) -> None:
+        try:
+            self.ros.type_info(type_name, timeout=REPORT_TIMEOUT * 4)
+        except IpcError as exc:
+            log.info("type_info %s: %s", type_name, exc.message)
+        finally:
+            self._fetching.discard(type_name)
+
+    def _warm(self, topic: str) -> None:
+        """Before a stream's first frame (in its request's greenlet): its type's type_info cached."""
+        try:
+            table = self.ros.entities().topics.get(topic) or {}
+            types = table.get("types")
+            if isinstance(types, list) and types and isinstance(types[0], str):
+                self.ros.type_info(types[0], timeout=self.ros.ipc_timeout)
+        except IpcError as exc:
+            log.info("type_info for %s: %s", topic, exc.message)
 
     def _report(self, counters: dict[str, int]) -> None:
         self.ros.call("streams_report", counters, timeout=REPORT_TIMEOUT)

@@ -34,7 +34,7 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
     app.config["SOVD"] = cfg
     app.config["MAX_CONTENT_LENGTH"] = cfg.max_body_bytes
 
-    from .routes import common, data, discovery, root, subscriptions, ui
+    from .routes import common, data, discovery, root, subscriptions, ui, unimplemented
 
     # `data//a/b` must reach the data route as `/a/b`, not be redirected to `data/a/b`.
     app.url_map.merge_slashes = False
@@ -55,6 +55,7 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
     app.register_blueprint(discovery.bp)
     app.register_blueprint(data.bp)
     app.register_blueprint(subscriptions.bp)
+    app.register_blueprint(unimplemented.bp)  # medkit's routes not served here: 501
     app.register_blueprint(ui.bp)  # the dashboard at /ui/ (app/ui/)
     if cfg.debug_commands:  # test and bench routes; never in production
         from .routes import debug

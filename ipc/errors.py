@@ -15,6 +15,7 @@ CODES: dict[str, tuple[int, str, str | None, int | None]] = {
     "bad-request": (400, "invalid-request", None, None),
     "invalid-topic": (400, "invalid-parameter", None, None),
     "invalid-type": (400, "invalid-parameter", None, None),
+    "type-mismatch": (400, "invalid-parameter", None, None),
     "type-not-installed": (400, "invalid-request", None, None),
     "invalid-data": (400, "invalid-request", None, None),
     "unknown-command": (400, "invalid-request", None, None),

@@ -276,8 +276,13 @@ class TopicPool:
             type_name = entry.type_name
             counts = (entry.publisher_count, entry.subscriber_count)
         else:
-            type_name = None
-            counts = (len(self.publishers(topic)), self.subscriber_count(topic))
+            # The type comes from the graph whatever the endpoint kind (as medkit's does): a
+            # command input with subscribers only still says what to PUT to it.
+            pubs = self.publishers(topic)
+            subs = self._foreign(self.node.get_subscriptions_info_by_topic(topic))
+            types = collections.Counter(i.topic_type for i in pubs or subs if i.topic_type)
+            type_name = types.most_common(1)[0][0] if types else None
+            counts = (len(pubs), len(subs))
         return {"topic": topic, "type": type_name, "status": "metadata_only", "data_json": b"{}",
                 "timestamp": time.time_ns(), "publisher_count": counts[0],
                 "subscriber_count": counts[1], "reason": reason}

@@ -7,6 +7,10 @@ QoS: a publisher is made with QoS matched to the topic's subscribers
 latched command input hears it).  When the subscribers change so that the
 pooled publisher no longer fits them, the next PUT makes a new one.
 
+Types: a PUT whose type is not one the topic's publishers or subscribers use
+(the gateway's own left out) is refused (``type-mismatch``) before any
+publisher is made; only a topic without typed endpoints takes any type.
+
 Matching: a publisher made for a PUT has not been discovered by the topic's
 subscribers yet; a message published at once would be lost.  So a new
 publisher waits (on the ROS thread's timers, never blocking it) until it has
@@ -72,6 +76,7 @@ class PublisherPool:
             raise IpcError(exc.code, "Invalid message type format" if exc.code == "invalid-type"
                            else exc.message, params) from None
         subscribers = self.pool._foreign(self.node.get_subscriptions_info_by_topic(topic))
+        self._check_type(topic, type_name, subscribers)
         profile = qos.publisher_qos(subscribers)
         current = self.entries.get(topic)
         if current is not None and current.type_name == type_name and qos.key(current.profile) == qos.key(profile):
@@ -110,6 +115,21 @@ class PublisherPool:
                 self.stats.publishes_waiting = len(self.pending)
 
         attempt()
+
+    def _check_type(self, topic: str, type_name: str, subscribers: list) -> None:
+        """Refuse a type the topic's endpoints do not use, before any publisher is made.
+
+        A publisher of a foreign type would sit on the robot's topic (until
+        ``idle_safety_net``) and reach nobody.  Only a topic without typed
+        endpoints (the gateway's own left out) accepts any type; a topic with
+        endpoints of several types accepts each of them.
+        """
+        types = {i.topic_type for i in (*subscribers, *self.pool.publishers(topic)) if i.topic_type}
+        if types and type_name not in types:
+            used = ", ".join(sorted(types))
+            raise IpcError("type-mismatch", f"{topic} carries {used} (the type of its publishers and "
+                                            f"subscribers); a {type_name} message cannot be published there",
+                           {"topic": topic, "type": type_name, "topic_types": sorted(types)})
 
     def _own_heard(self, topic: str, profile) -> int:
         """1 when the pool's own subscription to ``topic`` matches a publisher with ``profile``."""

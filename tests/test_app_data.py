@@ -95,11 +95,32 @@ def test_sample(client, fw):
         "id": TEMP, "data": TEMP_DATA,
         "x-medkit": {"entity_id": "temp_sensor", "timestamp": 1769955039964403368,
                      "ros2": {"topic": TEMP, "type": TEMP_TYPE},
-                     "publisher_count": 1, "subscriber_count": 0, "status": "data"}}
+                     "publisher_count": 1, "subscriber_count": 0, "status": "data",
+                     "type_info": TEMP_INFO}}
     (args,) = fw.calls("sample")
     assert args == {"topic": TEMP, "timeout_ms": 500}
     # IPC deadline = sample timeout + a margin
     assert 1500 <= fw.deadlines("sample")[0] <= 2000
+
+
+def test_type_info_of_a_read_is_asked_once_per_type(client, fw):
+    """The warm path adds no round trip: the type_info cache the listing fills serves every read."""
+    for _ in range(5):
+        assert client.get("/api/v1/apps/temp_sensor/data" + TEMP).get_json()["x-medkit"]["type_info"] == TEMP_INFO
+    assert fw.calls("type_info") == [{"type": TEMP_TYPE}]
+    assert len(fw.calls("sample")) == 5
+
+
+def test_type_info_is_left_out_when_unknown_or_unavailable(client, fw):
+    fw.samples["/x"] = data_sample("/x", "pkg/msg/NotInstalled", {"a": 1})
+    ext = client.get("/api/v1/apps/temp_sensor/data/x").get_json()["x-medkit"]
+    assert "type_info" not in ext and ext["status"] == "data"
+    fw.samples["/y"] = data_sample("/y", "pkg/msg/Slow", {"a": 1})
+    fw.errors["type_info"] = IpcError("deadline-exceeded", "too slow")
+    r = client.get("/api/v1/apps/temp_sensor/data/y")
+    assert r.status_code == 200 and "type_info" not in r.get_json()["x-medkit"]
+    r = client.get("/api/v1/apps/temp_sensor/data/no/type")   # metadata only, no type: nothing to ask
+    assert r.status_code == 200 and "type_info" not in r.get_json()["x-medkit"]
 
 
 def test_sample_bytes_are_spliced_unchanged(client, fw):

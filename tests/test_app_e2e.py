@@ -10,13 +10,16 @@ import http.client
 import json
 import math
 import os
+import re
 import signal
 
 import jsonschema
 import psutil
 import pytest
+import requests
 
-from app.entities import host_component_id
+from app.entities import PARAM_NAMES, host_component_id
+from app.routes import unimplemented
 from tests.support.gateway import Gateway
 from tests.support.procs import RosNode, poll_until, publisher
 
@@ -257,6 +260,30 @@ def test_data_items_of_an_app(gw):
     assert cmd["x-medkit"]["ros2"]["direction"] == "subscribe"
 
 
+def test_routes_not_served_here_are_501_not_404(gw):
+    """medkit's routes without a provider here answer 501 whatever the ids; a wrong id elsewhere stays 404."""
+    wait_for_apps(gw, {"temp_sensor"})
+    ids = {"apps": "temp_sensor", "components": HOST_ID, "areas": "nope", "functions": "powertrain"}
+    auth = {"Authorization": f"Bearer {TOKEN}"}
+    for route, path, collection in unimplemented.paths():
+        for real in (True, False):
+            concrete = path
+            if collection:
+                concrete = path.replace("{" + PARAM_NAMES[collection] + "}", ids[collection] if real else "no_such")
+            concrete = re.sub(r"\{[^}]+\}", "x1", concrete)
+            r = requests.request(route.method, gw.api + concrete, headers=auth, timeout=15)
+            assert r.status_code == 501, (route.method, concrete, r.text)
+            assert r.json() == {"error_code": "not-implemented",
+                                "message": unimplemented.FEATURES[route.feature].message,
+                                "parameters": {"feature": route.feature}}, concrete
+    caps = gw.get("/").json()["capabilities"]
+    assert [name for name in ("bulk_data", "locking", "scripts", "lifecycle", "updates") if caps[name]] == []
+    r = gw.get("/apps/temp_sensor/no-such-collection")
+    assert r.status_code == 404 and r.json()["error_code"] == "resource-not-found"
+    r = requests.post(gw.api + "/areas/nope/bulk-data/x1", timeout=15)
+    assert r.status_code == 405, r.text   # as medkit: bulk data is uploaded to components and apps only
+
+
 # ------------------------------------------------------------------ samples
 
 
@@ -319,6 +346,26 @@ def test_names_the_middleware_refuses_are_400_without_a_traceback(gw):
     assert "Traceback" not in logged and "ERROR" not in logged, logged[-3000:]
 
 
+def test_a_read_carries_the_type_info_the_listing_has(gw):
+    """medkit sends ``x-medkit.type_info`` in every data read (``build_read_response``)."""
+    wait_for_data(gw, f"/apps/temp_sensor/data{TEMP}")
+    listed = next(i for i in gw.get("/apps/temp_sensor/data").json()["items"] if i["id"] == TEMP)
+    for _ in range(3):  # the first read of the type in an HTTP worker asks the ROS worker, the rest hit its cache
+        ext = sample(gw, f"/apps/temp_sensor/data{TEMP}")["x-medkit"]
+        assert ext["type_info"] == listed["x-medkit"]["type_info"]
+        assert ext["type_info"]["default_value"]["temperature"] == 0.0
+
+
+def test_a_command_input_without_publishers_reads_with_its_type(gw):
+    """A topic with subscribers only (the controller's command input) says what to PUT to it."""
+    wait_for_apps(gw, {"controller"})
+    ext = poll_until(lambda: (e := sample(gw, "/apps/controller/data/body/lights/cmd")["x-medkit"])
+                     ["subscriber_count"] >= 1 and e, 15, message="the subscriber of /body/lights/cmd")
+    assert ext["status"] == "metadata_only" and ext["reason"] == "no-publishers"
+    assert ext["ros2"] == {"topic": "/body/lights/cmd", "type": "std_msgs/msg/Bool"}
+    assert ext["type_info"]["default_value"] == {"data": False}
+
+
 def test_topic_not_in_graph_is_metadata_only(gw):
     wait_for_apps(gw, {"temp_sensor"})
     body = sample(gw, "/apps/temp_sensor/data/no/such/topic")
@@ -361,6 +408,25 @@ def same_floats(got: list, want: list) -> bool:
     """Element-wise equality where NaN equals NaN (and nothing else)."""
     return len(got) == len(want) and all(
         (math.isnan(g) and math.isnan(w)) if math.isnan(w) else g == w for g, w in zip(got, want, strict=True))
+
+
+def test_a_put_checks_the_entity_before_the_body(gw):
+    """medkit's order: authentication, the entity (a wrong route is named), then the body."""
+    wait_for_apps(gw, {"controller"})
+    auth = {"Authorization": f"Bearer {TOKEN}", "Content-Type": "application/json"}
+    r = gw.put("/components/controller/data/body/lights/cmd", data=b"not json", headers=auth)
+    assert r.status_code == 400, r.text
+    assert r.json() == {"error_code": "invalid-parameter",
+                        "message": "Invalid entity type for route: expected Component, got App",
+                        "parameters": {"entity_id": "controller", "expected_type": "Component",
+                                       "actual_type": "App"}}
+    r = gw.put("/apps/no_such_app/data/body/lights/cmd", data=b"[1]", headers=auth)
+    assert r.status_code == 404 and r.json()["error_code"] == "entity-not-found", r.text
+    r = gw.put("/components/controller/data/body/lights/cmd", data=b"not json",
+               headers={"Content-Type": "application/json"})
+    assert r.status_code == 401, r.text   # authentication still comes first
+    r = gw.put("/apps/controller/data/body/lights/cmd", data=b"not json", headers=auth)
+    assert r.status_code == 400 and r.json()["error_code"] == "invalid-request", r.text
 
 
 def test_nan_and_infinities_survive_get_and_put(gw):

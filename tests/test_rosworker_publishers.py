@@ -57,16 +57,61 @@ def test_a_latched_command_input_hears_the_put_and_the_answer_counts_it(nodes, g
 
 def test_subscribers_the_message_cannot_reach_are_reported(nodes, gateway):
     topic = unique_topic("mixed")
-    nodes.append(listener(topic, "std_msgs/msg/String"))   # another type: can never match a Bool
+    # A topic of two types takes either; the String subscriber can never match a Bool.
+    nodes.append(listener(topic, "std_msgs/msg/Bool"))
+    nodes.append(listener(topic, "std_msgs/msg/String"))
     gw = gateway("--publish-match-wait", "0.5")
     host = gw.host()
-    poll_until(lambda: subscribers_seen(gw, host, topic, 1), 15, message="the subscriber discovered")
+    poll_until(lambda: subscribers_seen(gw, host, topic, 2), 15, message="the subscribers discovered")
     r = gw.put(f"/components/{host}/data{topic}", json={"type": "std_msgs/msg/Bool", "data": {"data": True}})
     assert r.status_code == 200, r.text
     ext = r.json()["x-medkit"]
-    assert ext["subscriber_count"] == 0
+    assert ext["subscriber_count"] == 1
     assert ext["unmatched_subscriber_count"] == 1
     assert "did not receive" in ext["warning"]
+
+
+def topic_types(client, topic: str) -> list[str]:
+    """The topic's types in the ROS worker's graph: its own endpoints' types included."""
+    return next((t["types"] for t in client.call("graph")["topics"] if t["name"] == topic), [])
+
+
+def test_a_put_of_another_type_is_refused_and_creates_nothing(nodes, gateway):
+    """Publishers only, subscribers only, both: a String PUT to a Bool topic is 400 and leaves no publisher."""
+    bool_ = "std_msgs/msg/Bool"
+    cases = {"publishers": ({"publish": [{"topic": "t", "type": bool_, "rate": 5, "value": {"data": True}}]}),
+             "subscribers": ({"subscribe": [{"topic": "t", "type": bool_}]}),
+             "both": ({"publish": [{"topic": "t", "type": bool_, "rate": 5, "value": {"data": True}}],
+                       "subscribe": [{"topic": "t", "type": bool_}]})}
+    topics = {}
+    for kind, spec in cases.items():
+        topic = topics[kind] = unique_topic(f"typed_{kind}")
+        for item in spec.get("publish", []) + spec.get("subscribe", []):
+            item["topic"] = topic
+        nodes.append(RosNode({"node": f"typed_{kind}", **spec}))
+    gw = gateway()
+    host = gw.host()
+    client = gw.rosworker_client()
+    try:
+        for kind, topic in topics.items():
+            poll_until(lambda t=topic: topic_types(client, t) == [bool_], 15, message=f"{topic} discovered")
+            r = gw.put(f"/components/{host}/data{topic}",
+                       json={"type": "std_msgs/msg/String", "data": {"data": "on"}})
+            assert r.status_code == 400, (kind, r.text)
+            body = r.json()
+            assert body["error_code"] == "invalid-parameter"
+            assert "std_msgs/msg/String" in body["message"] and bool_ in body["message"], body
+            assert body["parameters"]["topic_types"] == [bool_]
+            assert body["parameters"]["type"] == "std_msgs/msg/String"
+            # Nothing was created: the worker pools no publisher, and the graph (which lists the
+            # gateway's own endpoints' types, registered locally when they are made) shows no String.
+            assert client.call("stats")["details"]["publishers"] == 0, kind
+            assert topic_types(client, topic) == [bool_], kind
+        # The topic's own type is still published.
+        r = gw.put(f"/components/{host}/data{topics['both']}", json={"type": bool_, "data": {"data": False}})
+        assert r.status_code == 200, r.text
+    finally:
+        client.close()
 
 
 def test_an_unused_publisher_expires(gateway):
@@ -88,11 +133,11 @@ def test_an_unused_publisher_expires(gateway):
 
 def test_a_put_waiting_for_its_subscribers_at_shutdown_is_answered_not_published(nodes, gateway):
     topic = unique_topic("late")
-    sub = listener(topic, "std_msgs/msg/String")   # a Bool publisher waits for it in vain
-    nodes.append(sub)
+    nodes.append(listener(topic, "std_msgs/msg/Bool"))
+    nodes.append(listener(topic, "std_msgs/msg/String"))   # a Bool publisher waits for it in vain
     gw = gateway("--publish-match-wait", "20", "--ipc-timeout", "30")
     host = gw.host()
-    poll_until(lambda: subscribers_seen(gw, host, topic, 1), 15, message="the subscriber discovered")
+    poll_until(lambda: subscribers_seen(gw, host, topic, 2), 15, message="the subscribers discovered")
     answers: list = []
     put = threading.Thread(target=lambda: answers.append(gw.put(
         f"/components/{host}/data{topic}", json={"type": "std_msgs/msg/Bool", "data": {"data": True}},

@@ -65,7 +65,7 @@ def read(collection: str, entity_id: str, data_id: str):
         result = rosclient.get().call("sample", args, timeout + SAMPLE_IPC_MARGIN_S)
     except IpcError as exc:
         raise samples.error(exc, entity.id, topic, data_id, config().cold_wait_cap) from None
-    head, data, tail = samples.body_parts(topic, result, entity.id)
+    head, data, tail = samples.body_parts(topic, result, entity.id, _type_info(result.get("type")))
     if len(data) > SPLICE_COPY_LIMIT:
         # A large message (an image is ~3 MB of JSON) is not copied once more: the three
         # parts are written one after the other (Werkzeug adds their Content-Length).
@@ -73,13 +73,30 @@ def read(collection: str, entity_id: str, data_id: str):
     return current_app.response_class(b"".join((head, data, tail)), mimetype="application/json")
 
 
+def _type_info(type_name: Any) -> bytes | None:
+    """``x-medkit.type_info`` of a read, as medkit sends it; from the per-process cache the
+    listing fills, so only the first read of a type in this process asks the ROS worker.
+    Left out on trouble, as in the listing."""
+    if not isinstance(type_name, str):
+        return None
+    try:
+        return rosclient.get().type_info_json(type_name, timeout=config().ipc_timeout)
+    except IpcError as exc:
+        current_app.logger.info("type_info %s: %s", type_name, exc.message)
+        return None
+
+
 @bp.put(ENTITY + "/data/<data_id:data_id>")
 def write(collection: str, entity_id: str, data_id: str):
+    # medkit's order: authentication (its pre-routing middleware; here with the gateway-wide
+    # publish switch), then the entity, so that a wrong route is named whatever the body,
+    # then the body.  The path's own syntax (entity id, topic name) is checked before the
+    # entity is looked up, as a read does: it needs no ROS worker.
     authorize_publish()
     check_entity_id(entity_id)
     topic = topic_from_data_id(data_id)
-    type_name, data = publish_body()
     entity = lookup(collection, entity_id)
+    type_name, data = publish_body()
     timeout = config().ipc_timeout
     try:
         # Not idempotent: sent once, never again after a timeout.

@@ -12,12 +12,17 @@ from flask import Blueprint
 from .. import openapi, rosclient
 from ..entities import API_BASE
 from ..errors import ApiError
+from . import unimplemented
 from .common import config, entity_id_problem, json_response
 
 bp = Blueprint("root", __name__, url_prefix=API_BASE)
 
 NAME = "sovd-gateway"
 SOVD_VERSION = openapi.SOVD_VERSION
+
+# medkit's capabilities that this gateway does not serve and whose routes are not in
+# unimplemented.ROUTES (later issues implement them).
+NOT_SERVED = ("operations", "async_actions", "configurations", "faults", "logs", "triggers")
 
 # The contract's counters, in its order: what /health shows while the ROS worker is down
 # and no answer was ever received.
@@ -60,6 +65,10 @@ def root():
             "authentication": bool(cfg.api_token),
             "docs": True,
             "cyclic_subscriptions": True,
+            # medkit's features not served here.  Those of unimplemented.ROUTES answer 501;
+            # those of NOT_SERVED answer 404 until the issues that implement them.
+            **{name: False for name in NOT_SERVED},
+            **unimplemented.capabilities(),
         },
     })
 
