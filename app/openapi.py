@@ -416,7 +416,8 @@ def _subscription_paths(collection: str) -> dict[str, Any]:
                   "another entity (`x-medkit-entity-mismatch`) or another collection than `data` "
                   "(`x-medkit-collection-not-supported`), or a protocol other than sse "
                   "(`x-medkit-unsupported-protocol`)")
-    full = ("503", "At the max_subscriptions cap (`service-unavailable`), or the ROS worker is away; "
+    full = ("503", "At the max_subscriptions cap, or this client's max_subscriptions_per_client cap "
+                   "(`service-unavailable`), or the ROS worker is away; "
                    "retry after `Retry-After` seconds")
     created = {"description": "Created", "headers": {"Location": {"schema": STR}},
                "content": {"application/json": {"schema": ref("CyclicSubscription")}}}
