@@ -438,7 +438,8 @@ def _subscription_paths(collection: str) -> dict[str, Any]:
     unauthorized = ("401", "An API token is configured and the request has none (`unauthorized`)")
     forbidden = ("403", "An API token is configured and the request's is wrong (`forbidden`)")
     token = {"security": [{"bearerAuth": []}, {}]}
-    full = ("503", "At the max_subscriptions cap (`service-unavailable`), or the ROS worker is away; "
+    full = ("503", "At the max_subscriptions cap, or this client's max_subscriptions_per_client cap "
+                   "(`service-unavailable`), or the ROS worker is away; "
                    "retry after `Retry-After` seconds")
     created = {"description": "Created", "headers": {"Location": {"schema": STR}},
                "content": {"application/json": {"schema": ref("CyclicSubscription")}}}

@@ -129,6 +129,8 @@ SETTINGS: tuple[Setting, ...] = (
             "subscribers to match before it publishes", 0, 30),
     Setting("max_subscriptions", int, 1000, "cyclic subscriptions (SSE streams' sources) held at once",
             1, 100000),
+    Setting("max_subscriptions_per_client", int, 100, "cyclic subscriptions one client address may hold "
+            "at once", 1, 100000),
     Setting("max_stream_duration", int, 3600, "longest duration in seconds a cyclic subscription may ask",
             1, 86400),
     Setting("stream_send_timeout", float, 30.0, "seconds an SSE client may take to take one frame before "

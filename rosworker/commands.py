@@ -158,10 +158,13 @@ class Commands:
     def sub_create(self, task: Task) -> None:
         collection, entity_id = self._entity(task.args)
         mode = _string(task.args, "bytes", BYTES_MODES)
-        task.reply(self.streams.create(collection, entity_id, _string(task.args, "resource"),
-                                       _topic(task.args), mode, _string(task.args, "interval",
-                                                                        tuple(events.INTERVALS)),
-                                       self._duration(task.args)))
+        # The client's address (the per-client cap); absent from an older HTTP side or a probe.
+        client = _string(task.args, "client", limit=256) if task.args.get("client") is not None else ""
+        result = self.streams.create(collection, entity_id, _string(task.args, "resource"), _topic(task.args),
+                                     mode, _string(task.args, "interval", tuple(events.INTERVALS)),
+                                     self._duration(task.args), client)
+        # Answered once it is in the restart state: it survives a ROS worker killed right after.
+        self.streams.when_saved(lambda: task.reply(result))
 
     def sub_list(self, task: Task) -> None:
         task.reply({"items": self.streams.listing(*self._entity(task.args))})
@@ -175,12 +178,13 @@ class Commands:
             interval = _string(task.args, "interval", tuple(events.INTERVALS))
         if task.args.get("duration") is not None:
             duration = self._duration(task.args)
-        task.reply(self.streams.update(*self._entity(task.args), _string(task.args, "id", limit=64),
-                                       interval, duration))
+        result = self.streams.update(*self._entity(task.args), _string(task.args, "id", limit=64),
+                                     interval, duration)
+        self.streams.when_saved(lambda: task.reply(result))
 
     def sub_delete(self, task: Task) -> None:
         self.streams.delete(*self._entity(task.args), _string(task.args, "id", limit=64))
-        task.reply({})
+        self.streams.when_saved(lambda: task.reply({}))
 
     def streams_report(self, task: Task) -> None:
         pid = task.args.get("pid")

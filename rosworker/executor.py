@@ -21,6 +21,8 @@ are needed, and a pooled topic costs nothing between reads.
 
 Timers (graph polling, idle sweep, cold-wait deadlines, stream ticks,
 publishers waiting for their subscribers) run on the same thread from a heap.
+Another thread hands work to this one with :meth:`RosExecutor.post` (the
+restart state's writer: the replies that waited for a write).
 
 Containment: an exception in a task answers that task's caller with an
 error; an exception anywhere else on this thread (a timer, a cold-topic
@@ -68,7 +70,7 @@ class Task:
     """
 
     __slots__ = ("cmd", "args", "identity", "rid", "deadline", "received", "request_id", "answered",
-                 "_executor")
+                 "counted", "_executor")
 
     def __init__(self, executor: RosExecutor, request: Request, deadline: float, received: float):
         self.cmd = request.cmd
@@ -79,6 +81,7 @@ class Task:
         self.received = received
         self.request_id = request.request_id
         self.answered = False
+        self.counted = False  # in stats.commands: before its reply goes, so a later ``stats`` sees it
         self._executor = executor
 
     def reply(self, result: dict[str, Any]) -> None:
@@ -132,6 +135,7 @@ class RosExecutor:
         self.cold_entries: Callable[[], list] = lambda: []
         self.on_ready: Callable[[Any], None] = lambda entry: None
         self.on_idle: Callable[[], None] = lambda: None
+        self._posted: collections.deque[Callable[[], None]] = collections.deque()
 
     # ---- any thread -------------------------------------------------------------------
     def stop(self) -> None:
@@ -141,6 +145,19 @@ class RosExecutor:
             os.write(self._wake_w, b"x")
         except OSError:
             pass  # the pipe is full (a wake-up is pending) or already closed
+
+    def post(self, fn: Callable[[], None]) -> None:
+        """Run ``fn`` on the ROS thread soon (any thread; deque.append is atomic)."""
+        self._posted.append(fn)
+        try:
+            os.write(self._wake_w, b"p")
+        except OSError:
+            pass  # the pipe is full (a wake-up is pending) or closed (run_posted() is called at the end)
+
+    def run_posted(self) -> None:
+        """Run what other threads posted (ROS thread)."""
+        while self._posted:
+            self.guarded("posted work", self._posted.popleft())
 
     @property
     def stopping(self) -> bool:
@@ -183,6 +200,9 @@ class RosExecutor:
             self.stats.queue_max_depth_observed = depth
 
     def _send(self, task: Task, message: dict) -> None:
+        if not task.counted:
+            task.counted = True
+            self.stats.count_command(task.cmd)
         with bound(task.request_id):
             try:
                 frame = protocol.pack(message)
@@ -287,7 +307,8 @@ class RosExecutor:
                                            "see its log"))
         finally:
             # Only names of the protocol are queued (ipc/server.py), so the table stays small.
-            self.stats.task_finished(started, ok, task.cmd)
+            self.stats.task_finished(started, ok, task.cmd, counted=task.counted)
+            task.counted = True
 
     def drain(self) -> None:
         """Run what is queued now; requests that come meanwhile are read between tasks."""
@@ -314,6 +335,8 @@ class RosExecutor:
             events = dict(self._poller.poll(math.ceil(timeout * 1000)))
             if self._wake_r in events:
                 self._drain_pipe()
+            if self._posted:
+                self.run_posted()
             if self._router in events:
                 self.guarded("reading requests", self._read)
             self._run_timers()

@@ -10,6 +10,11 @@ second it re-checks everything, which catches what the fingerprint cannot see
 
 The per-node detail the ``graph`` command returns is expensive (two calls
 per node), so it is built only when asked, once per generation.
+
+The names of the last poll (``topics``) and ``epoch`` (bumped at each full
+re-check) let a stream's tick answer a topic nobody publishes without asking
+the graph (``rosworker/streams.py``): a name that is not in ``topics`` has no
+endpoint at all, and its answer only changes with ``generation``.
 """
 
 from __future__ import annotations
@@ -42,6 +47,8 @@ class GraphMonitor:
         self._last_full = 0.0
         self._last_request = 0.0
         self.nodes: list[str] = []  # fully qualified names of the other nodes, as of the last change
+        self.topics: frozenset[str] = frozenset()  # topic names of the graph, as of the last change
+        self.epoch = 0  # bumped at every full re-check (a change, or FULL_CHECK_EVERY)
 
     def tick(self) -> None:
         names_types = self.node.get_topic_names_and_types()
@@ -52,10 +59,12 @@ class GraphMonitor:
         if changed:
             self._fingerprint = fingerprint
             self.nodes = node_names(nodes, self.own)
+            self.topics = frozenset(n for n, _ in names_types)
             self._bump()
         full = changed or now - self._last_full >= FULL_CHECK_EVERY
         if full:
             self._last_full = now
+            self.epoch += 1
         self.pool.check_graph(full)
         if full and not changed and self._snapshot is not None \
                 and now - self._last_request < SNAPSHOT_RECHECK_FOR:

@@ -36,6 +36,7 @@ EXIT_CANNOT_BOOT = 3
 LOCK_WAIT = 10.0     # seconds a restarted worker waits for the runtime dir's lock
 LOCK_POLL = 0.05
 STATE_SAVE_EVERY = 0.25  # seconds; only written when it changed
+STATE_FLUSH_WAIT = 2.0   # seconds the restart state's writer gets to finish at shutdown
 REWARM_FOR = 30.0    # seconds to keep trying to re-subscribe topics pooled before a restart
 REWARM_RETRY = 0.25
 # Discovery settles before the socket is bound: at least SETTLE_MIN after a restart, until
@@ -184,12 +185,17 @@ class Worker:
         pool = TopicPool(node, executor, stats, max_pool_size=cfg.max_pool_size,
                          cold_wait_cap=cfg.cold_wait_cap, idle_safety_net=cfg.idle_safety_net,
                          max_pool_bytes=cfg.max_pool_bytes)
-        state = RestartState(cfg.runtime_dir)
+        state = RestartState(cfg.runtime_dir, post=executor.post)
+        if not self.restart:
+            # The restart state is for a worker that died, not for a new gateway: a clean
+            # (re)start begins with no subscriptions (and nothing to re-warm).
+            state.discard()
         graph = GraphMonitor(node, pool, stats)
         publishers = PublisherPool(node, executor, stats, pool, cfg.max_publishers, cfg.idle_safety_net,
                                    cfg.publish_match_wait)
         streams = StreamRegistry(zctx, cfg.runtime_dir, executor, pool, stats,
                                  max_subscriptions=cfg.max_subscriptions,
+                                 max_per_client=cfg.max_subscriptions_per_client, graph=graph,
                                  max_duration=cfg.max_stream_duration, sample_timeout=cfg.sample_timeout)
         Commands(executor, pool, graph, publishers, streams, sample_timeout=cfg.sample_timeout,
                  debug=cfg.debug_commands)
@@ -210,14 +216,17 @@ class Worker:
         if cfg.idle_safety_net:
             every(cfg.idle_sweep_tick, pool.sweep_idle)
             every(cfg.idle_sweep_tick, publishers.sweep_idle)
-        def save_state() -> None:
-            state.save(pool.restart_topics(), graph.nodes, streams.saved())
+        def save_state(then=None) -> None:
+            # Hands the state to the writer thread; no serialisation of the registry here.
+            state.submit(pool.restart_topics(), graph.nodes, streams.version, streams.records, then)
 
         every(STATE_SAVE_EVERY, save_state)
         streams.on_change = save_state
+        streams.after_save = save_state
         if rewarm:
             self._rewarm(executor, pool, rewarm, time.monotonic() + REWARM_FOR)
         streams.restore(subscriptions)
+        state.start()
 
         try:
             executor.bind()
@@ -237,6 +246,10 @@ class Worker:
             # Stop taking work, wake every waiter, answer what is queued, release everything.
             executor.closing = True
             pool.closing = True
+            # Write what is pending and answer the commands that waited for it; from here on
+            # a change (a queued command drained below) is written on this thread.
+            state.close(STATE_FLUSH_WAIT)
+            executor.run_posted()
             executor.guarded("the pool's shutdown", pool.shutdown)
             executor.guarded("the publishers' shutdown", publishers.shutdown)
             executor.linger()

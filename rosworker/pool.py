@@ -162,6 +162,12 @@ class TopicPool:
         self._take(entry)
         return None if entry.raw is None else self._data(entry, mode)
 
+    def absent(self, topic: str) -> dict[str, Any]:
+        """The answer for a topic the graph does not list at all (the graph monitor's last poll)."""
+        return {"topic": topic, "type": None, "status": "metadata_only", "data_json": b"{}",
+                "timestamp": time.time_ns(), "publisher_count": 0, "subscriber_count": 0,
+                "reason": "not-in-graph"}
+
     def waiting(self, topic: str) -> dict[str, Any]:
         """The answer for a pooled topic whose first message did not come in time."""
         return self._metadata(topic, self.entries.get(topic), "timeout")

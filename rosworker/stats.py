@@ -70,14 +70,26 @@ class Stats:
         self.current_task_started = now
         return now
 
-    def task_finished(self, started: float, ok: bool, command: str | None = None) -> None:
+    def _command_totals(self, command: str) -> list[int]:
+        totals = self.commands.get(command)
+        if totals is None:
+            # A new key: a new dict, so that snapshot() on the control thread never iterates a
+            # dict that changes size under it (it iterates whichever dict it read).
+            totals = [0, 0]
+            self.commands = {**self.commands, command: totals}
+        return totals
+
+    def count_command(self, command: str) -> None:
+        """One more answered ``command`` (ROS thread, before its reply is sent)."""
+        self._command_totals(command)[0] += 1
+
+    def task_finished(self, started: float, ok: bool, command: str | None = None, counted: bool = False) -> None:
         latency_us = int((time.monotonic() - started) * 1e6)
         self.current_task_started = 0.0
         if command is not None:
-            totals = self.commands.get(command)
-            if totals is None:
-                totals = self.commands[command] = [0, 0]
-            totals[0] += 1
+            totals = self._command_totals(command)
+            if not counted:  # not answered yet (a reply that comes later): counted now
+                totals[0] += 1
             totals[1] += latency_us
         self.last_task_latency_us = latency_us
         if latency_us > self.max_task_latency_us:
@@ -147,7 +159,7 @@ class Stats:
                 "publishes_waiting": self.publishes_waiting,
                 "pool_json_drops": self.pool_json_drops,
                 "ipc_dropped_frames": self.ipc_dropped_frames,
-                "commands": {name: {"count": n, "time_us": t} for name, (n, t) in self.commands.items()},
+                "commands": {name: {"count": n, "time_us": t} for name, (n, t) in list(self.commands.items())},
                 "ticks": dict(self.ticks),
             },
         }

@@ -20,18 +20,47 @@ it never waits: a topic whose first message has not arrived is subscribed
 and gets no frame until the message arrives or ``sample_timeout`` passes
 (then a ``metadata_only``/``timeout`` frame, as a GET would answer).
 
+A watched topic that is not pooled (nobody publishes on it, or it does not
+exist at all) costs nothing per tick: its ``metadata_only`` answer is built
+once per graph change and reused (``_unpooled``).  A name missing from the
+graph monitor's last poll has no endpoint, so its answer is built without a
+single graph query and kept until the graph's ``generation`` changes (a
+publisher that appears adds the name, and the next tick pools the topic).  A
+name in the graph without a publisher of ours to read (only subscribers, or
+only the gateway's own publisher) is asked again at each full re-check
+(``epoch``, every second), since an endpoint joining an existing topic may
+leave the names alone.
+
+Caps: ``max_subscriptions`` in all, and ``max_subscriptions_per_client`` per
+client address (the HTTP side sends it with ``sub_create``), so that one
+client cannot take the whole registry.
+
 Control events (``updated``, ``deleted``, ``expired``) and a heartbeat go on
 the same socket, so HTTP workers end or retime their streams at once.
+
+Expiry runs on the monotonic clock (``Subscription.deadline``): a step of the
+wall clock neither ends a subscription early nor keeps it for ever.
+``expires_at_ns`` is derived from it for the answers, and for the restart
+state, where the wall clock is the clock the next worker shares.
+
+Saving: each subscription's restart record (its JSON) is made once, when it
+is created or changed; after a change ``on_change`` hands the list of records
+(a copy of references, not a serialisation) to the restart state's writer
+thread (``rosworker/state.py``), and a command that changed the registry is
+answered once the writer has written it (``when_saved``): a subscription that
+was answered survives a ROS worker killed right after, and the ROS thread's
+cost of a change does not grow with the registry.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import secrets
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import zmq
@@ -41,7 +70,8 @@ from ipc.errors import IpcError
 from ipc.server import bind_publisher
 
 from .executor import RosExecutor, Timer
-from .pool import TopicPool
+from .graph import GraphMonitor
+from .pool import BYTES_MODES, TopicPool
 from .stats import Stats
 
 log = logging.getLogger("sovd.rosworker.streams")
@@ -49,6 +79,7 @@ log = logging.getLogger("sovd.rosworker.streams")
 HEARTBEAT_EVERY = 1.0
 REPORT_TTL = 5.0    # seconds an HTTP worker's stream counters count as current
 REPORTERS_CAP = 256
+SAVE_WAIT = 1.0     # seconds a changed registry waits for the writer before it is answered anyway
 
 
 @dataclass
@@ -61,12 +92,27 @@ class Subscription:
     bytes: str
     interval: str
     duration: int
-    expires_at_ns: int      # wall clock, so that it means the same after a restart
     created_at_ns: int
+    client: str = ""        # the client address that made it ("" when the HTTP side did not say)
+    deadline: float = field(default=0.0, compare=False)  # time.monotonic() at which it expires
+
+    @property
+    def expires_at_ns(self) -> int:
+        """The wall-clock time of ``deadline``, for display and the restart state only."""
+        return time.time_ns() + int((self.deadline - time.monotonic()) * 1e9)
 
     def wire(self) -> dict[str, Any]:
         """What the ``sub_*`` commands answer (the HTTP side makes the SOVD body of it)."""
-        return {**asdict(self), "key": self.key}
+        out = asdict(self)
+        del out["deadline"]
+        return {**out, "expires_at_ns": self.expires_at_ns, "key": self.key}
+
+    def record(self) -> bytes:
+        """Its restart record: the fields, with the deadline as wall-clock ``expires_at_ns``."""
+        out = asdict(self)
+        del out["deadline"]
+        out["expires_at_ns"] = self.expires_at_ns
+        return json.dumps(out, separators=(",", ":")).encode()
 
     @property
     def key(self) -> bytes:
@@ -85,23 +131,32 @@ class _Watch:
 
 class StreamRegistry:
     def __init__(self, zctx: zmq.Context, runtime_dir: str, executor: RosExecutor, pool: TopicPool,
-                 stats: Stats, *, max_subscriptions: int, max_duration: int, sample_timeout: float):
+                 stats: Stats, *, max_subscriptions: int, max_duration: int, sample_timeout: float,
+                 max_per_client: int | None = None, graph: GraphMonitor | None = None):
         self.zctx = zctx
         self.runtime_dir = runtime_dir
         self.executor = executor
         self.pool = pool
         self.stats = stats
         self.max_subscriptions = max_subscriptions
+        self.max_per_client = max_per_client or max_subscriptions
+        self.graph = graph
         self.max_duration = max_duration
         self.sample_timeout = sample_timeout
         self.subs: dict[str, Subscription] = {}
+        self._records: dict[str, bytes] = {}  # id -> Subscription.record(), made when it changes
+        self.version = 0                      # bumped at each change of the registry
+        self.per_client: dict[str, int] = {}
+        # topic -> ((generation, epoch or -1), the answer a read would give): see the module's doc
+        self._unpooled: dict[str, tuple[tuple[int, int], dict[str, Any]]] = {}
         self.watches: dict[str, dict[tuple[str, str], _Watch]] = {i: {} for i in events.INTERVALS}
         self._expiry: dict[str, Timer] = {}
         self._pub: zmq.Socket | None = None
         self._reports: dict[int, tuple[float, dict[str, int]]] = {}
-        # Called after every change of the registry: the restart state is saved at once, so that
-        # a subscription that was answered survives a ROS worker killed right after.
+        # Called after every change of the registry: hands the records to the restart state's writer.
         self.on_change: Callable[[], None] = lambda: None
+        # Runs its argument once what on_change handed over is written (see when_saved).
+        self.after_save: Callable[[Callable[[], None]], None] = lambda then: then()
         stats.max_subscriptions = max_subscriptions
 
     # ---- set-up (ROS thread, before the loop) ---------------------------------------------
@@ -113,19 +168,50 @@ class StreamRegistry:
 
     def restore(self, saved: list[dict[str, Any]]) -> None:
         """Subscriptions of a previous worker (restart state); the expired ones are dropped."""
-        now = time.time_ns()
+        now, mono = time.time_ns(), time.monotonic()
         for item in saved:
+            item = dict(item)
+            expires_at_ns = item.pop("expires_at_ns", None)
+            item.pop("deadline", None)
             try:
                 sub = Subscription(**item)
             except TypeError:
                 continue
-            if sub.expires_at_ns > now and sub.interval in events.INTERVALS and len(self.subs) < self.max_subscriptions:
+            if not isinstance(expires_at_ns, int) or isinstance(expires_at_ns, bool):
+                continue
+            sub.deadline = mono + (expires_at_ns - now) / 1e9  # the wall clock is the one both workers share
+            if expires_at_ns > now and sub.interval in events.INTERVALS \
+                    and len(self.subs) < self.max_subscriptions and self._held_by(sub.client) < self.max_per_client:
                 self._add(sub)
         if self.subs:
             log.info("restored %d cyclic subscriptions from before the restart", len(self.subs))
 
     def saved(self) -> list[dict[str, Any]]:
-        return [asdict(s) for s in self.subs.values()]
+        return [json.loads(r) for r in self._records.values()]
+
+    def records(self) -> list[bytes]:
+        """The restart records (JSON texts made at each change): a copy of references, O(n) pointers."""
+        return list(self._records.values())
+
+    def when_saved(self, then: Callable[[], None]) -> None:
+        """Run ``then`` (a command's reply) once the latest change is written, or after SAVE_WAIT."""
+        done = False
+        timer: Timer | None = None
+
+        def once() -> None:
+            nonlocal done
+            if not done:
+                done = True
+                if timer is not None:
+                    timer.cancel()
+                then()
+
+        def late() -> None:
+            log.warning("the restart state was not written within %g s; answering anyway", SAVE_WAIT)
+            once()
+
+        timer = self.executor.call_later(SAVE_WAIT, late)
+        self.after_save(once)
 
     def close(self) -> None:
         if self._pub is not None:
@@ -135,16 +221,20 @@ class StreamRegistry:
 
     # ---- commands ---------------------------------------------------------------------------
     def create(self, collection: str, entity_id: str, resource: str, topic: str, mode: str, interval: str,
-               duration: int) -> dict[str, Any]:
+               duration: int, client: str = "") -> dict[str, Any]:
         if len(self.subs) >= self.max_subscriptions:
             raise IpcError("subscriptions-full",
                            f"The gateway already holds {self.max_subscriptions} cyclic subscriptions "
                            "(max_subscriptions); delete one or retry later",
                            {"max_subscriptions": self.max_subscriptions})
-        now = time.time_ns()
+        if client and self._held_by(client) >= self.max_per_client:
+            raise IpcError("subscriptions-full",
+                           f"This client ({client}) already holds {self.max_per_client} cyclic subscriptions "
+                           "(max_subscriptions_per_client); delete one or retry later",
+                           {"max_subscriptions_per_client": self.max_per_client})
         sub = Subscription(id="sub_" + secrets.token_hex(8), collection=collection, entity_id=entity_id,
                            resource=resource, topic=topic, bytes=mode, interval=interval, duration=duration,
-                           expires_at_ns=now + duration * 10**9, created_at_ns=now)
+                           created_at_ns=time.time_ns(), client=client, deadline=time.monotonic() + duration)
         self._add(sub)
         self.stats.subscriptions_created += 1
         self.on_change()
@@ -169,9 +259,11 @@ class StreamRegistry:
             sub.interval = interval
         if duration is not None:
             sub.duration = duration
-            sub.expires_at_ns = time.time_ns() + duration * 10**9
+            sub.deadline = time.monotonic() + duration
             self._arm_expiry(sub)
         self._watch(sub)
+        self._records[sub.id] = sub.record()
+        self.version += 1
         self._control(sub, "updated")
         self.on_change()
         return sub.wire()
@@ -188,8 +280,15 @@ class StreamRegistry:
         self._sum_reports()
 
     # ---- registry -------------------------------------------------------------------------
+    def _held_by(self, client: str) -> int:
+        return self.per_client.get(client, 0) if client else 0
+
     def _add(self, sub: Subscription) -> None:
         self.subs[sub.id] = sub
+        self._records[sub.id] = sub.record()
+        self.version += 1
+        if sub.client:
+            self.per_client[sub.client] = self.per_client.get(sub.client, 0) + 1
         self._watch(sub)
         self._arm_expiry(sub)
         self.stats.active_subscriptions = len(self.subs)
@@ -197,6 +296,14 @@ class StreamRegistry:
     def _remove(self, sub: Subscription, event: str) -> None:
         if self.subs.pop(sub.id, None) is None:
             return
+        self._records.pop(sub.id, None)
+        self.version += 1
+        if sub.client:
+            held = self.per_client.get(sub.client, 0) - 1
+            if held > 0:
+                self.per_client[sub.client] = held
+            else:
+                self.per_client.pop(sub.client, None)
         self._unwatch(sub)
         timer = self._expiry.pop(sub.id, None)
         if timer is not None:
@@ -209,13 +316,17 @@ class StreamRegistry:
         old = self._expiry.pop(sub.id, None)
         if old is not None:
             old.cancel()
-        delay = max(0.0, (sub.expires_at_ns - time.time_ns()) / 1e9)
+        delay = max(0.0, sub.deadline - time.monotonic())
         self._expiry[sub.id] = self.executor.call_later(delay, lambda: self._expire(sub))
 
     def _expire(self, sub: Subscription) -> None:
-        if self.subs.get(sub.id) is sub and sub.expires_at_ns <= time.time_ns() + 1_000_000:
-            self.stats.subscriptions_expired += 1
-            self._remove(sub, "expired")
+        if self.subs.get(sub.id) is not sub:
+            return
+        if sub.deadline > time.monotonic() + 0.001:  # woken early: arm again (never left unarmed)
+            self._arm_expiry(sub)
+            return
+        self.stats.subscriptions_expired += 1
+        self._remove(sub, "expired")
 
     def _watch(self, sub: Subscription) -> None:
         watch = self.watches[sub.interval].setdefault((sub.topic, sub.bytes), _Watch())
@@ -228,6 +339,8 @@ class StreamRegistry:
             watch.count -= 1
             if watch.count <= 0:
                 del watches[(sub.topic, sub.bytes)]
+                if not any((sub.topic, m) in w for w in self.watches.values() for m in BYTES_MODES):
+                    self._unpooled.pop(sub.topic, None)
 
     # ---- ticks ----------------------------------------------------------------------------
     def _schedule(self, interval: str, when: float) -> None:
@@ -251,7 +364,7 @@ class StreamRegistry:
 
     def _frame(self, interval: str, topic: str, mode: str, watch: _Watch, stamp: int) -> None:
         try:
-            result = self.pool.peek(topic, mode)
+            result = self._peek(topic, mode)
         except IpcError as exc:
             self._publish(events.data_key(interval, mode, topic), {"ts": stamp, "error": exc.to_wire()})
             return
@@ -261,7 +374,29 @@ class StreamRegistry:
             result = self.pool.waiting(topic)
         meta = {k: v for k, v in result.items() if k != "data_json"}
         meta["ts"] = stamp
+        if result["status"] == "metadata_only":
+            meta["timestamp"] = stamp  # a kept answer says "now", as a fresh one would
         self._publish(events.data_key(interval, mode, topic), meta, result["data_json"])
+
+    def _peek(self, topic: str, mode: str) -> dict[str, Any] | None:
+        """``pool.peek``, except that an unpooled topic's answer is kept until the graph changes."""
+        graph = self.graph
+        if graph is None or self.pool.closing or topic in self.pool.entries:
+            return self.pool.peek(topic, mode)
+        listed = topic in graph.topics
+        when = (graph.generation, graph.epoch if listed else -1)
+        kept = self._unpooled.get(topic)
+        if kept is not None and kept[0] == when:
+            return kept[1]
+        if listed:
+            result = self.pool.peek(topic, mode)  # pools it if it has a publisher now
+            if topic in self.pool.entries:
+                self._unpooled.pop(topic, None)
+                return result
+        else:  # no endpoint at all as of the last poll: not a single graph query
+            result = self.pool.absent(topic)
+        self._unpooled[topic] = (when, result)
+        return result
 
     def _publish(self, key: bytes, meta: dict[str, Any], data: bytes = b"{}") -> None:
         self._send([key, protocol.pack(meta), data])
@@ -270,7 +405,7 @@ class StreamRegistry:
     def _control(self, sub: Subscription, event: str) -> None:
         self._send([events.CONTROL_KEY + sub.id.encode(), protocol.pack({
             "event": event, "id": sub.id, "key": sub.key, "interval": sub.interval,
-            "expires_in": max(0.0, (sub.expires_at_ns - time.time_ns()) / 1e9)})])
+            "expires_in": max(0.0, sub.deadline - time.monotonic())})])
 
     def _heartbeat(self) -> None:
         self.executor.call_later(HEARTBEAT_EVERY, self._heartbeat)

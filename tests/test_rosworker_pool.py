@@ -9,6 +9,7 @@ import time
 
 import pytest
 
+from ipc.settings import RESTART_ENV
 from tests.support.gateway import Gateway
 from tests.support.procs import RosNode, poll_until, publisher, unique_topic
 from tests.support.rosworker import SHADOW, RosWorker
@@ -198,7 +199,7 @@ def test_pooled_topics_are_subscribed_again_after_a_restart(nodes):
         poll_until(lambda: os.path.exists(state) and topic in open(state).read(), 5, message="pool saved")
         worker.signal(9)
         worker.proc.wait(10)
-        again = RosWorker(runtime_dir=runtime_dir)
+        again = RosWorker(runtime_dir=runtime_dir, env={RESTART_ENV: "1"})  # as the supervisor restarts it
         try:
             poll_until(lambda: again.call("pool")["topics"] == [topic], 10, message="re-warmed pool")
         finally:

@@ -168,7 +168,10 @@ def create(collection: str, entity_id: str):
     duration = _duration(body, required=True)
     topic, mode = parse_resource(body.get("resource"), collection, entity.id)
     sub = _call("sub_create", {"collection": collection, "entity_id": entity.id, "resource": body["resource"],
-                               "topic": topic, "bytes": mode, "interval": interval, "duration": duration})
+                               "topic": topic, "bytes": mode, "interval": interval, "duration": duration,
+                               # the client's address as app/clientaddr.py resolved it (environ, not
+                               # request.remote_addr: Werkzeug reads that before the resolution)
+                               "client": request.environ.get("REMOTE_ADDR") or ""})
     answer = public(sub)
     return json_response(answer, 201, headers={"Location": answer["event_source"].removesuffix("/events")})
 
