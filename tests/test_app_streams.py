@@ -419,12 +419,16 @@ def test_a_stream_whose_subscription_did_not_survive_a_restart_ends(robot):
         poll_until(lambda: sub["id"] in open(state).read(), 5, message="the subscription saved")
         with open_stream(gw, sub) as stream:
             assert "payload" in stream.next(timeout=5)
+            # Frozen first: a live worker rewrites its state whenever the graph or the pool
+            # changes (with the subscription in it), which would undo the edit before the kill.
+            pid = gw.rosworker_pid()
+            os.kill(pid, signal.SIGSTOP)
             saved = json.load(open(state))
             saved["subscriptions"] = []
             with open(state + ".new", "w") as fh:
                 json.dump(saved, fh)
             os.replace(state + ".new", state)
-            os.kill(gw.rosworker_pid(), signal.SIGKILL)
+            os.kill(pid, signal.SIGKILL)
             assert stream.ended(timeout=40)
             last = stream.events[-1]
             assert last["error"]["error_code"] == "resource-not-found", last
