@@ -8,7 +8,8 @@ already converted, so every reader of the same message shares one JSON text.
 A read of a topic whose first message has not arrived yet (cold) parks the
 caller as a *waiter* until the message arrives, the entry is evicted, or
 its deadline passes.  At most ``cold_wait_cap`` callers wait at once; the
-rest are told to retry (503) at once.
+rest are told to retry (503) at once, before their topic is pooled (a refused
+read evicts nothing).
 
 A message that cannot be decoded (bad CDR, or a robot built against another
 version of the message package) answers its readers ``message-undecodable``
@@ -133,7 +134,9 @@ class TopicPool:
             self.entries.move_to_end(topic)
         else:
             self.stats.pool_misses += 1
-            entry, reason = self._create(topic)
+            # A new entry has no message yet, so this reader will wait: shed it before the
+            # entry evicts a pooled topic and subscribes (see _create).
+            entry, reason = self._create(topic, waiter=True)
             if entry is None:
                 task.reply(self._metadata(topic, None, reason))
                 return
@@ -189,14 +192,17 @@ class TopicPool:
         """Pooled topics worth subscribing to again after a restart: not the undecodable ones."""
         return [t for t, e in self.entries.items() if e.failure is None and t not in self.undecodable]
 
-    def _park(self, task: Task, entry: Entry, mode: str, timeout: float) -> None:
+    def _check_cold_wait_cap(self, topic: str) -> None:
         cap = self.cold_wait_cap
         if cap and self.stats.concurrent_cold_waits >= cap:
             raise IpcError(
                 "cold-wait-cap-exceeded",
                 f"Too many callers already wait for a first message ({cap}); retry with backoff",
-                {"topic": entry.topic, "cold_wait_cap": cap},
+                {"topic": topic, "cold_wait_cap": cap},
             )
+
+    def _park(self, task: Task, entry: Entry, mode: str, timeout: float) -> None:
+        self._check_cold_wait_cap(entry.topic)
         wait = min(timeout, task.deadline - time.monotonic() - 0.05)
         waiter = Waiter(task, mode, None)  # type: ignore[arg-type]
         waiter.timer = self.executor.call_later(max(0.0, wait), lambda: self._expire(entry, waiter))
@@ -294,7 +300,15 @@ class TopicPool:
                 "subscriber_count": counts[1], "reason": reason}
 
     # ---- creation -----------------------------------------------------------------------
-    def _create(self, topic: str) -> tuple[Entry | None, str]:
+    def _create(self, topic: str, waiter: bool = False) -> tuple[Entry | None, str]:
+        """Pool ``topic`` (evicting the least recently read entry at the cap); None and why not.
+
+        ``waiter``: the caller will wait for the first message, so at the cold-wait cap it is
+        refused (IpcError) before anything changes.  A refused read that still evicted a
+        pooled topic and subscribed anew would, under load, evict the topics readers keep
+        warm faster than new subscriptions get their first message: the pool would thrash
+        and warm reads would be refused too.
+        """
         infos = self.publishers(topic)
         if not infos:
             in_graph = self.subscriber_count(topic) > 0 or bool(self.node.get_publishers_info_by_topic(topic))
@@ -312,6 +326,8 @@ class TopicPool:
         if previous is not None and previous != type_name:
             self.stats.type_change_events += 1
         self._remember_type(topic, type_name)
+        if waiter:
+            self._check_cold_wait_cap(topic)
         victim = None
         if len(self.entries) >= self.max_pool_size:
             victim = next((e for e in self.entries.values() if not e.waiters), None)

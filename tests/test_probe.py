@@ -88,10 +88,15 @@ def test_stats(worker):
 
 
 def test_graph(worker, level_pub):
+    # The topic and its node come from two discovery streams (DDS endpoints, and the
+    # node's ros_discovery_info sample) that arrive in either order, so the graph can
+    # list the topic before the node (ipc/PROTOCOL.md, `graph`): wait for both.
     def seen():
-        body = js(probe("--runtime-dir", worker.runtime_dir, "graph", "--json"))
-        return any(t["name"] == TOPIC for t in body["result"]["topics"])
-    poll_until(seen, 30, interval=0.2, message="publisher in the graph")
+        body = js(probe("--runtime-dir", worker.runtime_dir, "graph", "--json"))["result"]
+        node = next((n for n in body["nodes"] if n["fqn"] == "/probe_level"), None)
+        return (node is not None and [TOPIC, "std_msgs/msg/Float32"] in node["publishes"]
+                and any(t["name"] == TOPIC for t in body["topics"]))
+    poll_until(seen, 30, interval=0.2, message="the publisher's node and topic in the graph")
     r = probe("--runtime-dir", worker.runtime_dir, "graph")
     assert r.returncode == 0
     assert "/probe_level" in r.stdout and TOPIC in r.stdout

@@ -14,6 +14,8 @@ from __future__ import annotations
 import json
 import threading
 
+import requests
+
 from tests.reliability.load import (
     Client,
     HealthProbe,
@@ -25,7 +27,7 @@ from tests.reliability.load import (
     restarts_in,
     scaled,
 )
-from tests.support.procs import RosNode, poll_until, publisher
+from tests.support.procs import RosNode, poll_until, publisher, unique_topic
 
 CAP = 4
 SAMPLE_TIMEOUT = 3.0
@@ -114,3 +116,48 @@ def test_excess_cold_callers_are_shed_at_once_while_warm_reads_and_health_stay_f
     assert probe.worst_ms() < SAMPLE_TIMEOUT * 800
     assert probe.max_of("x-medkit-data-provider", "concurrent_cold_waits") <= CAP
     assert restarts_in(gw.output) == 0
+
+
+def test_a_shed_read_leaves_the_pool_as_it_was(gateways, nodes):
+    """A read refused at the cap must not evict a pooled topic or subscribe: under load such
+    refused reads evicted the warm topics faster than new subscriptions got a first message,
+    and warm reads were refused too (test_storm, most warm reads 503 on a busy machine)."""
+    warm, other, silent = unique_topic("warm"), unique_topic("other"), unique_topic("silent")
+    nodes.append(RosNode({"node": "shed_pubs", "publish": [
+        {"topic": warm, "type": "std_msgs/msg/Float64", "rate": 20, "counter": "data"},
+        {"topic": other, "type": "std_msgs/msg/Float64", "rate": 20, "counter": "data"},
+        {"topic": silent, "type": "std_msgs/msg/String", "rate": 0.001}]}))
+    # Room for two topics; one reader may wait for a first message.
+    gw = gateways("--max-pool-size", "2", "--cold-wait-cap", "1", "--sample-timeout", "20",
+                  "--log-level", "warning")
+    host = gw.host()
+
+    def read(topic: str) -> requests.Response:
+        return gw.get(f"/components/{host}/data{topic}", timeout=30)
+
+    poll_until(lambda: {warm, other, silent} <= {i["id"] for i in gw.get("/apps/shed_pubs/data").json()["items"]},
+               30, message="the three topics discovered")
+    poll_until(lambda: read(warm).json()["x-medkit"]["status"] == "data", 30, message="warm topic has data")
+    client = gw.rosworker_client()
+    waited: list = []
+    waiter = threading.Thread(target=lambda: waited.append(read(silent)), daemon=True)
+    try:
+        waiter.start()
+        poll_until(lambda: gw.get("/health").json()["x-medkit-data-provider"]["concurrent_cold_waits"] == 1,
+                   15, message="the silent read waits: the cap is reached")
+        assert set(client.call("pool", timeout=5)["topics"]) == {warm, silent}
+
+        shed = read(other)
+        assert shed.status_code == 503, shed.text
+        assert shed.json()["vendor_code"] == "x-medkit-cold-wait-cap-exceeded"
+        assert shed.json()["parameters"]["topic"] == other
+        # Nothing changed: the warm topic is still pooled and still answers with data.
+        assert set(client.call("pool", timeout=5)["topics"]) == {warm, silent}
+        again = read(warm)
+        assert again.status_code == 200, again.text
+        assert again.json()["x-medkit"]["status"] == "data"
+        assert client.call("stats", timeout=5)["details"]["evictions"]["lru"] == 0
+    finally:
+        waiter.join(30)
+        client.close()
+    assert waited and waited[0].json()["x-medkit"]["status"] == "metadata_only"
