@@ -25,6 +25,8 @@ difference between figures of the same run.
 | memory | ROS worker RSS before and with 256 pooled topics |
 | streams | 1,000 SSE streams on 10 topics at ``normal`` for 30 s (``bench/streams.py``), then 10 on the same topics |
 | stream image | a 640×480 rgb8 image at 5 Hz streamed at ``fast`` (``?bytes=base64``): publish stamp to client |
+| made-up topics | ROS worker CPU with 1,000 ``fast`` subscriptions on topics nobody publishes, against the same worker holding none |
+| subscription changes | median POST and DELETE of a cyclic subscription with 100 and with 900 held, beside ``/version-info`` |
 
 Floor, warm sample and echo route are measured in alternating rounds (floor
 -c8, sample -c8, echo -c8, floor -c1, sample -c1, echo -c1, health -c1, six
@@ -78,10 +80,12 @@ IMAGE_TOPIC = "/bench/camera/image"
 
 FULL = {"rounds": 6, "load_s": 2.5, "warmup_s": 2.0, "image_s": 8.0, "old_n": 30, "cold_n": 20,
         "idle_topics": 50, "idle_rate": 100, "idle_s": 10.0, "mem_topics": 256,
-        "streams": 1000, "streams_s": 30.0, "stream_image_s": 20.0}
+        "streams": 1000, "streams_s": 30.0, "stream_image_s": 20.0,
+        "made_up": 1000, "made_up_s": 10.0, "sub_sizes": (100, 900), "sub_rounds": 50}
 QUICK = {"rounds": 1, "load_s": 1.0, "warmup_s": 0.0, "image_s": 1.0, "old_n": 3, "cold_n": 3,
          "idle_topics": 50, "idle_rate": 100, "idle_s": 2.0, "mem_topics": 16,
-         "streams": 40, "streams_s": 3.0, "stream_image_s": 3.0}
+         "streams": 40, "streams_s": 3.0, "stream_image_s": 3.0,
+         "made_up": 20, "made_up_s": 1.0, "sub_sizes": (5, 25), "sub_rounds": 3}
 
 TARGETS = {
     "warm_rps_ratio": 0.7,        # warm sample 8 conn ≥ 0.7 × floor
@@ -215,7 +219,8 @@ class Bench:
         # memory before image/cold/idle: its "before" RSS is not their high-water mark
         cases = {"warm": self.case_floor_and_warm, "old": self.case_old_design,
                  "memory": self.case_memory, "image": self.case_image, "cold": self.case_cold,
-                 "idle": self.case_idle, "streams": self.case_streams, "stream_image": self.case_stream_image}
+                 "idle": self.case_idle, "streams": self.case_streams, "stream_image": self.case_stream_image,
+                 "sub_costs": self.case_sub_costs}
         only = set(self.args.only.split(",")) if self.args.only else set(cases)
         if "old" in only:
             only.add("warm")  # the old design is compared with the warm sample
@@ -451,6 +456,31 @@ class Bench:
                  "(take, convert, IPC, HTTP, client)", f"p50 ≤ {target:.0f} ms (rosbridge: 146 ms)",
                  got["stamp_latency_p50_ms"] <= target)
 
+    def case_sub_costs(self) -> None:
+        n, seconds = self.p["made_up"], self.p["made_up_s"]
+        got = streams.case_made_up(self.gw, self.host_id, n, seconds)
+        self.extra["made_up"] = got
+        extra = streams.TARGETS["made_up_cpu_extra"]
+        self.add("made_up", f"{n} fast subscriptions on made-up topics",
+                 f"ROS worker CPU over {seconds:g} s with {n} subscriptions at fast on topics nobody publishes "
+                 "(no stream open), after the same worker holding none for as long",
+                 got, f"{got['made_up_cpu']:.1%} of a core (reference, none held: {got['idle_cpu']:.1%}); "
+                 "issue 18 measured 98 % before the fix", f"≤ idle + {extra:.0%} of a core",
+                 got["extra_cpu"] <= extra)
+        sizes, rounds = self.p["sub_sizes"], self.p["sub_rounds"]
+        got = streams.case_sub_changes(self.gw, self.host_id, sizes, rounds)
+        self.extra["sub_changes"] = got
+        few, many = got[str(sizes[0])], got[str(sizes[-1])]
+        extra_ms = streams.TARGETS["sub_change_extra_ms"]
+        grown = max(many["post_p50_ms"] - few["post_p50_ms"], many["delete_p50_ms"] - few["delete_p50_ms"])
+        self.add("sub_changes", f"subscription POST/DELETE at {sizes[0]} vs {sizes[-1]} held",
+                 f"requests.Session, {rounds} POST + DELETE of one subscription (and a GET /version-info) at "
+                 f"each size; median", got,
+                 f"POST p50 {few['post_p50_ms']:.1f} → {many['post_p50_ms']:.1f} ms, DELETE p50 "
+                 f"{few['delete_p50_ms']:.1f} → {many['delete_p50_ms']:.1f} ms (reference, no IPC: /version-info "
+                 f"{few['floor_p50_ms']:.1f} → {many['floor_p50_ms']:.1f} ms); issue 18 measured POST 5.3 → 33.6 ms "
+                 "before the fix", f"{sizes[-1]} ≤ {sizes[0]} + {extra_ms:g} ms", grown <= extra_ms)
+
     def case_cold(self) -> None:
         n = self.p["cold_n"]
         topics = [f"/bench/cold/t{i}" for i in range(n)]
@@ -587,7 +617,7 @@ def ros_helper_demo() -> Proc:
 # ---------------------------------------------------------------------------- output
 
 ORDER = ("floor8", "floor1", "warm8", "warm1", "echo8", "echo1", "hop1", "inside", "old", "cold", "image",
-         "image_b64", "idle", "memory", "streams", "fanout", "stream_image")
+         "image_b64", "idle", "memory", "streams", "fanout", "stream_image", "made_up", "sub_changes")
 
 
 def ordered(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -635,7 +665,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="extra sovd-gateway flags, e.g. '--workers 3' (recorded in the JSON)")
     parser.add_argument("--rounds", type=int, help="floor/warm rounds (default 3, quick 1)")
     parser.add_argument("--only", metavar="CASES", help="comma-separated subset of: warm (floor, warm "
-                        "sample and echo route), old, memory, image, cold, idle, streams, stream_image (for "
+                        "sample and echo route), old, memory, image, cold, idle, streams, stream_image, sub_costs (for "
                         "development; the table is "
                         "partial)")
     args = parser.parse_args(argv)

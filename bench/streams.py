@@ -11,6 +11,13 @@ gateway).  Every figure is a ratio or a difference within the run.
 | streams | N streams (1,000) on 10 topics at ``normal`` (5,000 frames/s), 30 s; ``/health`` and a warm GET sampled meanwhile | ≥ 99 % of scheduled frames delivered, p99 lateness ≤ 100 ms, /health and warm GET p99 ≤ 50 ms |
 | fan-out | ROS worker CPU with N streams against 10 streams on the same topics | ≤ 1.2 × |
 | image | a 640×480 rgb8 image at 5 Hz streamed at ``fast`` with ``?bytes=base64`` | publish stamp → client p50 ≤ 30 ms |
+| made-up topics | ROS worker CPU with N (1,000) ``fast`` subscriptions on topics nobody publishes, no stream open, against the same worker with none | ≤ idle + 30 points of a core |
+| subscription changes | median POST and DELETE of a cyclic subscription with 100 and with 900 others held; ``/version-info`` (no IPC) timed between them | 900 ≤ 100 + 2 ms |
+
+The last two are issue 18's defects 2 and 5: before their fixes, 1,000 such
+subscriptions took the ROS worker from 1 % to 98 % of a core, and a POST went
+from 5.3 ms at 100 subscriptions to 33.6 ms at 900 (DELETE 37.5 ms), because
+every change rewrote the whole registry on the ROS thread.
 """
 
 from __future__ import annotations
@@ -42,7 +49,11 @@ TARGETS = {
     "streams_warm_p99_ms": 50.0,
     "fanout_ratio": 1.2,
     "image_latency_p50_ms": 30.0,
+    "made_up_cpu_extra": 0.30,       # of a core, above the same worker holding no subscription
+    "sub_change_extra_ms": 2.0,      # median POST/DELETE at 900 subscriptions ≤ at 100 + this
 }
+MADE_UP_PREFIX = "/bench/made_up/t"
+PER_ADDRESS = 100  # subscriptions made from one (forwarded) client address: max_subscriptions_per_client
 
 
 def subscribe(gw: Gateway, app: str, topic: str, interval: str, duration: int, query: str = "") -> dict:
@@ -180,3 +191,74 @@ def _wait_data(gw: Gateway, app: str, topics: list[str], timeout: float = 60.0) 
             if time.monotonic() > deadline:
                 raise RuntimeError(f"no data on {topic} through {app}")
             time.sleep(0.2)
+
+
+def _make_subscriptions(session: requests.Session, gw: Gateway, host: str, count: int, interval: str,
+                        start: int = 0, net: str = "10.77") -> list[str]:
+    """``count`` subscriptions on made-up topics, ``PER_ADDRESS`` per forwarded client address (the
+    bench's requests come from loopback, a trusted proxy); returns their ids."""
+    ids = []
+    for i in range(start, start + count):
+        r = session.post(f"{gw.api}/components/{host}/cyclic-subscriptions", timeout=15,
+                         headers={"X-Forwarded-For": f"{net}.{i // PER_ADDRESS // 250}.{i // PER_ADDRESS % 250 + 1}"},
+                         json={"resource": f"/api/v1/components/{host}/data{MADE_UP_PREFIX}{i}",
+                               "interval": interval, "duration": 3600})
+        r.raise_for_status()
+        ids.append(r.json()["id"])
+    return ids
+
+
+def _delete_subscriptions(session: requests.Session, gw: Gateway, host: str, ids: list[str]) -> None:
+    for sub_id in ids:
+        session.delete(f"{gw.api}/components/{host}/cyclic-subscriptions/{sub_id}", timeout=15)
+
+
+def case_made_up(gw: Gateway, host: str, n: int, seconds: float) -> dict[str, Any]:
+    """ROS worker CPU idle, then with ``n`` fast subscriptions on topics nobody publishes (same worker)."""
+    rw = gw.rosworker()
+    with requests.Session() as session:
+        before = cpu_seconds(rw)
+        time.sleep(seconds)
+        idle = (cpu_seconds(rw) - before) / seconds
+        ids = _make_subscriptions(session, gw, host, n, "fast")
+        try:
+            time.sleep(1.0)  # past the first ticks of every topic
+            before = cpu_seconds(rw)
+            time.sleep(seconds)
+            busy = (cpu_seconds(rw) - before) / seconds
+            ticks = requests.get(f"{gw.api}/health", timeout=10).json()
+        finally:
+            _delete_subscriptions(session, gw, host, ids)
+    return {"subscriptions": n, "seconds": seconds, "idle_cpu": idle, "made_up_cpu": busy,
+            "extra_cpu": busy - idle, "active_subscriptions": ticks["x-medkit-streams"]["active_subscriptions"]}
+
+
+def case_sub_changes(gw: Gateway, host: str, sizes: tuple[int, ...], rounds: int) -> dict[str, Any]:
+    """Median POST and DELETE of one cyclic subscription while ``size`` others are held, for each size;
+    ``GET /version-info`` (no IPC) timed in the same rounds as the reference."""
+    base = f"{gw.api}/components/{host}/cyclic-subscriptions"
+    out: dict[str, Any] = {}
+    held: list[str] = []
+    with requests.Session() as session:
+        try:
+            for size in sizes:
+                held += _make_subscriptions(session, gw, host, size - len(held), "slow", start=len(held))
+                post, delete, floor = [], [], []
+                for i in range(rounds):
+                    t = time.perf_counter()
+                    r = session.post(base, timeout=15, headers={"X-Forwarded-For": "10.78.0.1"}, json={
+                        "resource": f"/api/v1/components/{host}/data/bench/sub_change/t{i}",
+                        "interval": "slow", "duration": 600})
+                    post.append((time.perf_counter() - t) * 1000)
+                    r.raise_for_status()
+                    t = time.perf_counter()
+                    session.delete(f"{base}/{r.json()['id']}", timeout=15).raise_for_status()
+                    delete.append((time.perf_counter() - t) * 1000)
+                    t = time.perf_counter()
+                    session.get(f"{gw.api}/version-info", timeout=15).raise_for_status()
+                    floor.append((time.perf_counter() - t) * 1000)
+                out[str(size)] = {"post_p50_ms": statistics.median(post), "delete_p50_ms": statistics.median(delete),
+                                  "floor_p50_ms": statistics.median(floor), "rounds": rounds}
+        finally:
+            _delete_subscriptions(session, gw, host, held)
+    return out

@@ -9,7 +9,11 @@ The ROS worker serves two ROUTER sockets in its runtime directory:
   that never touches rclpy.  It answers ``ping`` and ``stats`` from counters,
   at once, whatever the ROS thread is doing, and checks the watchdog every
   ``WATCHDOG_CHECK`` seconds.  So ``/health`` and the supervisor's health
-  check never wait behind ROS work.
+  check never wait behind ROS work.  Nothing but :meth:`ControlServer.finish`
+  ends that thread: an exception while answering answers that request
+  ``internal``, and one anywhere else in its loop is logged and the loop goes
+  on (at most one traceback per ``ERROR_LOG_EVERY``).  A dead control thread
+  would leave a healthy worker silent, and the supervisor would kill it.
 
 Both sockets decode requests with :func:`read_requests`: frames that are not
 requests are dropped (counted in ``ipc_dropped_frames``), malformed requests
@@ -39,6 +43,7 @@ log = logging.getLogger("sovd.rosworker.ipc")
 
 WATCHDOG_CHECK = 0.05      # seconds between looks at the ROS thread's current task
 READ_BATCH = 1000          # requests read in one go before the reader returns
+ERROR_LOG_EVERY = 10.0     # seconds: one traceback per period from the control thread, the rest counted
 
 
 class LockHeld(RuntimeError):
@@ -194,6 +199,8 @@ class ControlServer:
         self._stop = threading.Event()
         self._ready = threading.Event()
         self._error: BaseException | None = None
+        self._error_logged = -ERROR_LOG_EVERY
+        self.errors = 0  # exceptions contained on the control thread
         self._thread = threading.Thread(target=self._run, name="ipc-control", daemon=True)
 
     def answer(self, cmd: str) -> dict[str, Any]:
@@ -218,7 +225,21 @@ class ControlServer:
         if request.cmd not in protocol.IMMEDIATE:
             raise IpcError("bad-request", f"the control socket answers {', '.join(protocol.IMMEDIATE)} only; "
                                           f"send {request.cmd!r} to {protocol.SOCKET_NAME}")
-        _send(router, request.identity, reply_frame(request.rid, self.answer(request.cmd)))
+        try:
+            result = self.answer(request.cmd)
+        except Exception:
+            self._contained(f"answering {request.cmd}")
+            raise IpcError("internal", f"the ROS worker failed to answer {request.cmd} (logged)") from None
+        _send(router, request.identity, reply_frame(request.rid, result))
+
+    def _contained(self, where: str) -> None:
+        """Count the exception being handled; log its traceback at most once per ``ERROR_LOG_EVERY``."""
+        self.errors += 1
+        now = time.monotonic()
+        if now - self._error_logged >= ERROR_LOG_EVERY:
+            self._error_logged = now
+            log.exception("control thread: %s failed (contained; %d so far, further tracebacks at most "
+                          "every %g s)", where, self.errors, ERROR_LOG_EVERY)
 
     def _run(self) -> None:
         try:
@@ -230,9 +251,15 @@ class ControlServer:
         self._ready.set()
         try:
             while not self._stop.is_set():
-                if router.poll(int(WATCHDOG_CHECK * 1000), zmq.POLLIN):
-                    read_requests(router, self.stats, lambda request: self._accept(router, request))
-                self.stats.check_watchdog()
+                try:
+                    if router.poll(int(WATCHDOG_CHECK * 1000), zmq.POLLIN):
+                        read_requests(router, self.stats, lambda request: self._accept(router, request))
+                    self.stats.check_watchdog()
+                except zmq.ContextTerminated:
+                    break
+                except Exception:
+                    self._contained("the control loop")
+                    self._stop.wait(WATCHDOG_CHECK)  # never a hot loop of the same failure
         finally:
             router.close(linger=0)
             try:

@@ -17,7 +17,7 @@ import pytest
 from tests.support.procs import REPO
 
 CASES = {"floor8", "floor1", "warm8", "warm1", "echo8", "echo1", "hop1", "inside", "old", "cold", "image",
-         "image_b64", "idle", "memory", "streams", "fanout", "stream_image"}
+         "image_b64", "idle", "memory", "streams", "fanout", "stream_image", "made_up", "sub_changes"}
 
 
 @pytest.mark.timeout(120)
@@ -50,6 +50,10 @@ def test_quick_bench_runs_every_case_and_writes_json(tmp_path):
     assert len(cold["samples_ms"]) + cold["misses"] == 3  # every fresh topic was read once
     assert rows["idle"]["values"]["pooled"] >= 50
     assert rows["memory"]["values"]["pooled"] > 0
+    assert rows["made_up"]["values"]["active_subscriptions"] == 20  # --quick makes 20, all held while measured
+    changes = rows["sub_changes"]["values"]
+    assert set(changes) == {"5", "25"} and all(v["post_p50_ms"] > 0 and v["delete_p50_ms"] > 0
+                                                for v in changes.values())
     # The table is printed, one line per case.
     for row in rows.values():
         assert row["case"] in proc.stdout
