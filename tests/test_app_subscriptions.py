@@ -63,6 +63,14 @@ def test_create_answers_201_with_medkits_fields(client, fw):
     assert sent["topic"] == "/powertrain/engine/temperature" and sent["bytes"] == "array"
 
 
+def test_the_client_is_named_by_its_address_and_a_listener_without_one_still_subscribes(client, fw):
+    assert client.post(BASE, json=body(), environ_base={"REMOTE_ADDR": "192.0.2.7"}).status_code == 201
+    assert fw.calls("sub_create")[-1]["client"] == "192.0.2.7"
+    r = client.post(BASE, json=body(), environ_base={"REMOTE_ADDR": ""})
+    assert r.status_code == 201, r.data
+    assert fw.calls("sub_create")[-1]["client"] == "unknown"
+
+
 def test_protocol_defaults_to_sse_and_every_topic_spelling_and_bytes_query_is_accepted(client, fw):
     for resource, mode in [
         ("/api/v1/apps/temp_sensor/data/powertrain%2Fengine%2Ftemperature", "array"),

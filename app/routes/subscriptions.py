@@ -34,6 +34,7 @@ _RESOURCE = re.compile(r"^/api/v1/([^/?#]+)/([^/?#]+)/([^/?#]+)(/.*)?$")
 _BAD_PERCENT = re.compile(r"%(?![0-9A-Fa-f]{2})")
 _SUB_ID = re.compile(r"^sub_[0-9a-f]{16}$")
 BYTES_MODES = ("array", "base64")
+UNKNOWN_CLIENT = "unknown"
 
 
 def _bad(message: str, parameter: str, value: Any, **extra: Any) -> ApiError:
@@ -155,6 +156,14 @@ def _known(sub_id: str) -> None:
         raise ApiError(404, "resource-not-found", "Subscription not found", {"subscription_id": sub_id[:100]})
 
 
+def _client() -> str:
+    """Whose subscription this is, for ``max_subscriptions_per_client``: the address that
+    app/clientaddr.py resolved (read from the environ: Werkzeug's ``request.remote_addr`` is
+    read before that resolution).  A listener without peer addresses (a UNIX socket with no
+    trusted proxy in front) gives none; its clients share one name instead of being refused."""
+    return (request.environ.get("REMOTE_ADDR") or UNKNOWN_CLIENT)[:256]
+
+
 @bp.post(ENTITY + "/cyclic-subscriptions")
 def create(collection: str, entity_id: str):
     authorize_change()
@@ -169,9 +178,7 @@ def create(collection: str, entity_id: str):
     topic, mode = parse_resource(body.get("resource"), collection, entity.id)
     sub = _call("sub_create", {"collection": collection, "entity_id": entity.id, "resource": body["resource"],
                                "topic": topic, "bytes": mode, "interval": interval, "duration": duration,
-                               # the client's address as app/clientaddr.py resolved it (environ, not
-                               # request.remote_addr: Werkzeug reads that before the resolution)
-                               "client": request.environ.get("REMOTE_ADDR") or ""})
+                               "client": _client()})
     answer = public(sub)
     return json_response(answer, 201, headers={"Location": answer["event_source"].removesuffix("/events")})
 
