@@ -27,3 +27,98 @@ def nodes():
     yield started
     for node in reversed(started):
         node.stop()
+
+
+# ---------------------------------------------------------------- the HTTP app on a fake ROS worker
+#
+# ``fw`` is a FakeWorker (tests/support/fakeworker.py) holding the ROBOT graph, ``client`` a Flask
+# test client of ``make_app(fw)``. A module says what it needs with one marker:
+#
+#     pytestmark = pytest.mark.fakeworker(scope="module", allow_publish=True)
+#
+#   scope         "function" (default): a fresh worker for every test; "module": one worker for
+#                 the module. A function-scoped client over a module's worker starts clean: no
+#                 subscriptions, no canned errors, no requests recorded.
+#   client_scope  "function" (default) or "module" (one client, over a module-scoped worker)
+#   samples, type_infos, stats
+#                 put into the worker before its first test (``stats`` updates the canned
+#                 sections, so it can add or replace one)
+#   on_client     called with a new client once it is made (a module noting what it saw first)
+#   anything else goes to ``make_app`` (allow_publish, cors_origins, sample_timeout, ...)
+
+_SPEC_KEYS = ("scope", "client_scope", "samples", "type_infos", "stats", "on_client")
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "fakeworker(scope, client_scope, samples, type_infos, stats, on_client, "
+                                       "**make_app options): the fw and client fixtures of tests/conftest.py")
+
+
+def _fakeworker_spec(request) -> tuple[dict, dict]:
+    """(this module's fixture settings, the make_app options) from its ``fakeworker`` marker."""
+    marker = request.node.get_closest_marker("fakeworker")
+    kwargs = dict(marker.kwargs) if marker else {}
+    spec = {"scope": "function", "client_scope": "function", "samples": {}, "type_infos": {},
+            "stats": {}, "on_client": None}
+    spec.update({k: kwargs.pop(k) for k in _SPEC_KEYS if k in kwargs})
+    if spec["client_scope"] == "module" and spec["scope"] != "module":
+        raise pytest.UsageError("fakeworker: a module-scoped client needs a module-scoped worker")
+    return spec, kwargs
+
+
+def _robot_worker(spec: dict):
+    from tests.support.fakeworker import ROBOT, FakeWorker
+
+    worker = FakeWorker()
+    worker.set_graph(list(ROBOT))
+    worker.samples.update(spec["samples"])
+    worker.type_infos.update(spec["type_infos"])
+    worker.stats.update(spec["stats"])
+    return worker
+
+
+def _test_client(worker, spec: dict, options: dict):
+    from tests.support.fakeworker import make_app
+
+    client = make_app(worker, **options).test_client()
+    if spec["on_client"] is not None:
+        spec["on_client"](client)
+    return client
+
+
+@pytest.fixture(scope="module")
+def _module_fw(request):
+    spec, _ = _fakeworker_spec(request)
+    with _robot_worker(spec) as worker:
+        yield worker
+
+
+@pytest.fixture
+def fw(request):
+    """The fake ROS worker with the ROBOT graph (see the ``fakeworker`` marker above)."""
+    spec, _ = _fakeworker_spec(request)
+    if spec["scope"] == "module":
+        yield request.getfixturevalue("_module_fw")
+        return
+    with _robot_worker(spec) as worker:
+        yield worker
+
+
+@pytest.fixture(scope="module")
+def _module_client(request, _module_fw):
+    spec, options = _fakeworker_spec(request)
+    return _test_client(_module_fw, spec, options)
+
+
+@pytest.fixture
+def client(request, fw):
+    """A Flask test client of ``make_app(fw, **options)`` (see the ``fakeworker`` marker above)."""
+    spec, options = _fakeworker_spec(request)
+    if spec["client_scope"] == "module":
+        return request.getfixturevalue("_module_client")
+    if spec["scope"] == "module":  # the worker outlives the test: start from a clean one
+        fw.subscriptions.clear()
+        fw.errors.clear()
+        with fw._lock:
+            fw.requests.clear()
+    return _test_client(fw, spec, options)

@@ -11,28 +11,13 @@ import json
 
 import pytest
 
-from tests.support.fakeworker import ROBOT, FakeWorker, make_app
-
 SUBS = "/api/v1/apps/temp_sensor/cyclic-subscriptions"
 DATA = "/api/v1/apps/controller/data/body/lights/cmd"
 SUB = {"resource": "/api/v1/apps/temp_sensor/data/powertrain/engine/temperature", "interval": "normal",
        "duration": 60}
 PUB = {"type": "std_msgs/msg/Bool", "data": {"data": True}}
 
-
-@pytest.fixture(scope="module")
-def fw():
-    with FakeWorker() as worker:
-        worker.set_graph(list(ROBOT))
-        yield worker
-
-
-@pytest.fixture
-def client(fw):
-    fw.subscriptions.clear()
-    with fw._lock:
-        fw.requests.clear()
-    return make_app(fw, allow_publish=True).test_client()
+pytestmark = pytest.mark.fakeworker(scope="module", allow_publish=True)
 
 
 ACCEPTED = ["application/json", "application/json; charset=utf-8", "Application/JSON", "APPLICATION/JSON;charset=UTF-8",

@@ -8,23 +8,14 @@ from __future__ import annotations
 import pytest
 import requests
 
-from tests.support.fakeworker import ROBOT, FakeWorker, make_app
+from tests.support.fakeworker import make_app
 
 UI = "https://dashboard.example:8443"
 CORS_HEADERS = ("Access-Control-Allow-Origin", "Access-Control-Allow-Credentials",
                 "Access-Control-Allow-Methods", "Access-Control-Allow-Headers", "Access-Control-Expose-Headers")
 
-
-@pytest.fixture(scope="module")
-def fw():
-    with FakeWorker() as worker:
-        worker.set_graph(list(ROBOT))
-        yield worker
-
-
-@pytest.fixture(scope="module")
-def client(fw):
-    return make_app(fw, cors_origins=f"{UI},http://localhost:3000").test_client()
+pytestmark = pytest.mark.fakeworker(scope="module", client_scope="module",
+                                    cors_origins=f"{UI},http://localhost:3000")
 
 
 def test_an_allowed_origin_gets_its_origin_back_with_credentials(client):

@@ -8,7 +8,7 @@ import orjson
 import pytest
 
 from ipc.errors import IpcError
-from tests.support.fakeworker import ROBOT, FakeWorker, data_sample, make_app, metadata_sample, node
+from tests.support.fakeworker import data_sample, make_app, metadata_sample, node
 
 TEMP = "/powertrain/engine/temperature"
 TEMP_TYPE = "sensor_msgs/msg/Temperature"
@@ -17,19 +17,8 @@ TEMP_DATA = {"header": {"stamp": {"sec": 1769955040, "nanosec": 286555163}, "fra
 TEMP_INFO = {"schema": {"type": "object", "properties": {"temperature": {"type": "number"}}},
              "default_value": {"temperature": 0.0, "variance": 0.0}}
 
-
-@pytest.fixture
-def fw():
-    with FakeWorker() as worker:
-        worker.set_graph(list(ROBOT))
-        worker.samples[TEMP] = data_sample(TEMP, TEMP_TYPE, TEMP_DATA)
-        worker.type_infos[TEMP_TYPE] = TEMP_INFO
-        yield worker
-
-
-@pytest.fixture
-def client(fw):
-    return make_app(fw, sample_timeout=0.5).test_client()
+pytestmark = pytest.mark.fakeworker(samples={TEMP: data_sample(TEMP, TEMP_TYPE, TEMP_DATA)},
+                                    type_infos={TEMP_TYPE: TEMP_INFO}, sample_timeout=0.5)
 
 
 # ------------------------------------------------------------------ GET {entity}/data

@@ -7,19 +7,7 @@ from urllib.parse import unquote
 
 import pytest
 
-from tests.support.fakeworker import ROBOT, FakeWorker, make_app, node
-
-
-@pytest.fixture
-def fw():
-    with FakeWorker() as worker:
-        worker.set_graph(list(ROBOT))
-        yield worker
-
-
-@pytest.fixture
-def client(fw):
-    return make_app(fw).test_client()
+from tests.support.fakeworker import ROBOT, make_app, node
 
 
 def test_areas_are_empty(client):

@@ -38,27 +38,21 @@ def value(families: dict, family: str, sample: str | None = None, **labels) -> f
     return None
 
 
-@pytest.fixture(scope="module")
-def fw():
-    with FakeWorker() as worker:
-        worker.set_graph(list(ROBOT))
-        worker.samples[TOPIC] = data_sample(TOPIC, "sensor_msgs/msg/Temperature", {"temperature": 93.5})
-        worker.stats["details"] = {"evictions": {"lru": 3, "idle": 1}, "commands": {
-            "sample": {"count": 7, "time_us": 700}}, "ticks": {"fast": 5}, "publishers": 2}
-        worker.stats["streams"] = {"active_subscriptions": 2, "max_subscriptions": 1000,
-                                   "subscriptions_created": 4, "frames_published": 40}
-        yield worker
-
-
-@pytest.fixture(scope="module")
-def client(fw):
-    c = make_app(fw).test_client()
+def note_series(c) -> None:
     # The counters are the process's: a test module that ran before in this process (another
     # app, with routes of its own) may have left series; the storm may add none of its own.
     c.series_before = {(s.labels["route"], s.labels["method"], s.labels["status"])
                        for s in scrape(c)["sovd_http_requests"].samples
                        if s.name == "sovd_http_requests_total"}
-    return c
+
+
+pytestmark = pytest.mark.fakeworker(
+    scope="module", client_scope="module", on_client=note_series,
+    samples={TOPIC: data_sample(TOPIC, "sensor_msgs/msg/Temperature", {"temperature": 93.5})},
+    stats={"details": {"evictions": {"lru": 3, "idle": 1}, "commands": {"sample": {"count": 7, "time_us": 700}},
+                       "ticks": {"fast": 5}, "publishers": 2},
+           "streams": {"active_subscriptions": 2, "max_subscriptions": 1000, "subscriptions_created": 4,
+                       "frames_published": 40}})
 
 
 def test_requests_and_latency_count_by_route_template(client):

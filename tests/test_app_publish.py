@@ -8,23 +8,14 @@ import pytest
 from flask.testing import EnvironBuilder
 
 from ipc.errors import IpcError
-from tests.support.fakeworker import ROBOT, FakeWorker, make_app
+from tests.support.fakeworker import make_app
 
 URL = "/api/v1/apps/controller/data/body/lights/cmd"
 BODY = {"type": "std_msgs/msg/Bool", "data": {"data": True}}
 TOKEN = "s3cret-token-0123456789"
 
 
-@pytest.fixture
-def fw():
-    with FakeWorker() as worker:
-        worker.set_graph(list(ROBOT))
-        yield worker
-
-
-@pytest.fixture
-def client(fw):
-    return make_app(fw, allow_publish=True).test_client()
+pytestmark = pytest.mark.fakeworker(allow_publish=True)
 
 
 def no_ros_traffic(fw):

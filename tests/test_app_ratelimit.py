@@ -14,8 +14,10 @@ import pytest
 from app import openapi, ratelimit
 from app.clientaddr import Trusted, client_address
 from ipc import settings
-from tests.support.fakeworker import ROBOT, FakeWorker, make_app
+from tests.support.fakeworker import make_app
 from tests.test_app_openapi import check
+
+pytestmark = pytest.mark.fakeworker(scope="module")
 
 
 def buckets(tmp_path, client="", overall="", slots=ratelimit.SLOTS) -> ratelimit.SharedBuckets:
@@ -109,13 +111,6 @@ def test_client_address_behind_trusted_proxies():
     assert client_address("127.0.0.1", "not-an-ip, 127.0.0.1", trusted) == "127.0.0.1"
     assert client_address("::ffff:127.0.0.1", "198.51.100.7", trusted) == "198.51.100.7"
     assert client_address("203.0.113.9", "198.51.100.7", Trusted("*")) == "198.51.100.7"
-
-
-@pytest.fixture(scope="module")
-def fw():
-    with FakeWorker() as worker:
-        worker.set_graph(list(ROBOT))
-        yield worker
 
 
 def test_a_429_is_the_contracts_error_with_its_headers_and_monitoring_is_never_limited(fw):

@@ -11,22 +11,11 @@ from __future__ import annotations
 import pytest
 
 from ipc.protocol import valid_request_id
-from tests.support.fakeworker import ROBOT, FakeWorker, data_sample, make_app
+from tests.support.fakeworker import data_sample, make_app
 
 TOPIC = "/powertrain/engine/temperature"
-
-
-@pytest.fixture(scope="module")
-def fw():
-    with FakeWorker() as worker:
-        worker.set_graph(list(ROBOT))
-        worker.samples[TOPIC] = data_sample(TOPIC, "sensor_msgs/msg/Temperature", {"temperature": 1.0})
-        yield worker
-
-
-@pytest.fixture(scope="module")
-def client(fw):
-    return make_app(fw).test_client()
+pytestmark = pytest.mark.fakeworker(scope="module", client_scope="module", samples={
+    TOPIC: data_sample(TOPIC, "sensor_msgs/msg/Temperature", {"temperature": 1.0})})
 
 
 @pytest.mark.parametrize("incoming", ["abc-123", "0f8fad5b-d9cb-469f-a165-70867728950e", "x" * 128,

@@ -10,19 +10,7 @@ import pytest
 
 from app import openapi
 from app.routes import unimplemented
-from tests.support.fakeworker import ROBOT, STATS, FakeWorker, data_sample, make_app
-
-
-@pytest.fixture
-def fw():
-    with FakeWorker() as worker:
-        worker.set_graph(list(ROBOT))
-        yield worker
-
-
-@pytest.fixture
-def client(fw):
-    return make_app(fw).test_client()
+from tests.support.fakeworker import STATS, data_sample, make_app
 
 
 def test_root(client):

@@ -12,26 +12,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ipc.errors import IpcError
-from tests.support.fakeworker import ROBOT, FakeWorker, make_app
 
 BASE = "/api/v1/apps/temp_sensor/cyclic-subscriptions"
 RESOURCE = "/api/v1/apps/temp_sensor/data/powertrain/engine/temperature"
 
-
-@pytest.fixture(scope="module")
-def fw():
-    with FakeWorker() as worker:
-        worker.set_graph(list(ROBOT))
-        yield worker
-
-
-@pytest.fixture
-def client(fw):
-    fw.subscriptions.clear()
-    fw.errors.clear()
-    with fw._lock:
-        fw.requests.clear()
-    return make_app(fw).test_client()
+pytestmark = pytest.mark.fakeworker(scope="module")
 
 
 def body(**changes):
