@@ -137,48 +137,45 @@ def test_ping_and_stats_are_answered_from_the_counters(control, tmp_path):
     assert {k: v for k, v in answer.items() if k != "pid"} == stats.snapshot()
 
 
-def test_other_commands_are_refused_with_the_socket_to_send_them_to(control):
-    _, _, client = control
-    dealer = zmq.Context.instance().socket(zmq.DEALER)
-    dealer.setsockopt(zmq.LINGER, 0)
-    dealer.connect(client.control_endpoint)
-    try:
-        def ask(message: dict) -> dict:
-            dealer.send(protocol.pack(message))
-            assert dealer.poll(2000), "no answer"
-            return protocol.unpack(dealer.recv(), protocol.MAX_REPLY_FRAME)
-
-        reply = ask({"v": protocol.VERSION, "id": 1, "cmd": "sample", "args": {"topic": "/a"}})
-        assert reply["id"] == 1 and reply["ok"] is False
-        assert reply["error"]["code"] == "bad-request" and protocol.SOCKET_NAME in reply["error"]["message"]
-        reply = ask({"v": protocol.VERSION, "id": 2, "cmd": "rm -rf"})
-        assert reply["error"]["code"] == "unknown-command"
-        reply = ask({"v": protocol.VERSION + 1, "id": 3, "cmd": "ping"})
-        assert reply["error"]["code"] == "unsupported-version"
-        assert reply["error"]["params"] == {"supported": protocol.VERSION}
-        reply = ask({"v": protocol.VERSION, "id": 4, "cmd": "ping", "deadline_ms": 0})
-        assert reply["error"]["code"] == "bad-request"
-        reply = ask({"v": protocol.VERSION, "id": 5, "cmd": "ping", "request_id": "has space"})
-        assert reply["error"]["code"] == "bad-request"
-        assert ask({"v": protocol.VERSION, "id": 6, "cmd": "ping"})["ok"] is True
-    finally:
-        dealer.close()
+@pytest.fixture
+def dealer(control):
+    """A raw socket on the control endpoint: sends what the client never would."""
+    sock = zmq.Context.instance().socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.connect(control[2].control_endpoint)
+    yield sock
+    sock.close()
 
 
-def test_frames_that_are_not_requests_are_dropped_and_counted(control):
-    server, stats, client = control
-    dealer = zmq.Context.instance().socket(zmq.DEALER)
-    dealer.setsockopt(zmq.LINGER, 0)
-    dealer.connect(client.control_endpoint)
-    try:
-        dealer.send(b"\xc1 not msgpack")                       # undecodable
-        dealer.send_multipart([b"two", b"frames"])              # not one frame
-        dealer.send(protocol.pack({"v": protocol.VERSION, "id": "one", "cmd": "ping"}))  # no integer id
-        poll_until(lambda: stats.ipc_dropped_frames == 3, 5, message="three frames dropped")
-        assert not dealer.poll(200)                             # and none of them answered
-        assert client.call("ping", timeout=2)["version"] == "9.9.9"
-    finally:
-        dealer.close()
+def test_other_commands_are_refused_with_the_socket_to_send_them_to(dealer):
+    def ask(message: dict) -> dict:
+        dealer.send(protocol.pack(message))
+        assert dealer.poll(2000), "no answer"
+        return protocol.unpack(dealer.recv(), protocol.MAX_REPLY_FRAME)
+
+    reply = ask({"v": protocol.VERSION, "id": 1, "cmd": "sample", "args": {"topic": "/a"}})
+    assert reply["id"] == 1 and reply["ok"] is False
+    assert reply["error"]["code"] == "bad-request" and protocol.SOCKET_NAME in reply["error"]["message"]
+    reply = ask({"v": protocol.VERSION, "id": 2, "cmd": "rm -rf"})
+    assert reply["error"]["code"] == "unknown-command"
+    reply = ask({"v": protocol.VERSION + 1, "id": 3, "cmd": "ping"})
+    assert reply["error"]["code"] == "unsupported-version"
+    assert reply["error"]["params"] == {"supported": protocol.VERSION}
+    reply = ask({"v": protocol.VERSION, "id": 4, "cmd": "ping", "deadline_ms": 0})
+    assert reply["error"]["code"] == "bad-request"
+    reply = ask({"v": protocol.VERSION, "id": 5, "cmd": "ping", "request_id": "has space"})
+    assert reply["error"]["code"] == "bad-request"
+    assert ask({"v": protocol.VERSION, "id": 6, "cmd": "ping"})["ok"] is True
+
+
+def test_frames_that_are_not_requests_are_dropped_and_counted(control, dealer):
+    _, stats, client = control
+    dealer.send(b"\xc1 not msgpack")                       # undecodable
+    dealer.send_multipart([b"two", b"frames"])              # not one frame
+    dealer.send(protocol.pack({"v": protocol.VERSION, "id": "one", "cmd": "ping"}))  # no integer id
+    poll_until(lambda: stats.ipc_dropped_frames == 3, 5, message="three frames dropped")
+    assert not dealer.poll(200)                             # and none of them answered
+    assert client.call("ping", timeout=2)["version"] == "9.9.9"
 
 
 def test_the_control_thread_trips_the_watchdog_while_the_ros_thread_is_busy(control):
