@@ -24,11 +24,12 @@ from ipc import events
 from ipc.errors import IpcError
 from ipc.topics import InvalidTopic, normalize_topic
 
-from . import convert
+from . import msgtypes
 from .executor import RosExecutor, Task
 from .graph import GraphMonitor
 from .pool import BYTES_MODES, TopicPool
 from .publishers import PublisherPool
+from .schema import default_value, schema
 from .streams import StreamRegistry
 
 
@@ -136,10 +137,10 @@ class Commands:
         if not isinstance(type_name, str):
             raise IpcError("bad-request", "type: missing required field")
         try:
-            cls = convert.load_type(type_name)
-            info: dict[str, Any] = {"type": type_name, "schema": convert.schema(cls),
-                                    "default_value": convert.default_value(cls)}
-        except convert.ConversionError as exc:
+            cls = msgtypes.load_type(type_name)
+            info: dict[str, Any] = {"type": type_name, "schema": schema(cls),
+                                    "default_value": default_value(cls)}
+        except msgtypes.ConversionError as exc:
             raise IpcError(exc.code, exc.message, {"type": type_name[:300]}) from None
         task.reply(info)
 

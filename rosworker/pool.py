@@ -43,7 +43,8 @@ from rclpy.serialization import deserialize_message
 
 from ipc.errors import IpcError
 
-from . import convert, qos
+from . import msgtypes, qos
+from .encode import to_json
 from .executor import RosExecutor, Task, Timer
 from .stats import Stats
 
@@ -264,7 +265,7 @@ class TopicPool:
 
     def _convert(self, entry: Entry, mode: str) -> bytes:
         try:
-            return convert.to_json(deserialize_message(entry.raw, entry.cls), mode)
+            return to_json(deserialize_message(entry.raw, entry.cls), mode)
         except Exception as exc:  # rclpy raises several types for bad CDR; convert its own
             self.stats.undecodable_messages += 1
             if entry.topic not in self.undecodable:
@@ -318,8 +319,8 @@ class TopicPool:
         if type_name in self.unsupported:
             return None, "unsupported-type"
         try:
-            cls = convert.load_type(type_name)
-        except convert.ConversionError:
+            cls = msgtypes.load_type(type_name)
+        except msgtypes.ConversionError:
             self._mark_unsupported(type_name)
             return None, "unsupported-type"
         previous = self.last_types.get(topic)

@@ -34,7 +34,8 @@ import time
 
 from ipc.errors import IpcError
 
-from . import convert, qos
+from . import msgtypes, qos
+from .decode import from_plain
 from .executor import RosExecutor, Task, Timer
 from .pool import TopicPool
 from .stats import Stats
@@ -69,9 +70,9 @@ class PublisherPool:
 
     def publish(self, task: Task, topic: str, type_name: str, data: dict) -> None:
         try:
-            cls = convert.load_type(type_name)
-            msg = convert.from_plain(cls, data)
-        except convert.ConversionError as exc:
+            cls = msgtypes.load_type(type_name)
+            msg = from_plain(cls, data)
+        except msgtypes.ConversionError as exc:
             params = {"details": exc.message, "type": type_name} if exc.code == "invalid-type" else {}
             raise IpcError(exc.code, "Invalid message type format" if exc.code == "invalid-type"
                            else exc.message, params) from None
