@@ -157,7 +157,7 @@ class Worker:
 
         from .commands import Commands
         from .executor import RosExecutor
-        from .graph import GraphMonitor
+        from .graph import Endpoints, GraphMonitor
         from .pool import TopicPool
         from .publishers import PublisherPool
         from .state import RestartState
@@ -182,16 +182,17 @@ class Worker:
             "started_at": time.time_ns(), "domain_id": context.get_domain_id(),
         })
         executor = RosExecutor(zctx, cfg.runtime_dir, stats, cfg.max_queue_depth, immediate=control.answer)
+        endpoints = Endpoints(node)
         pool = TopicPool(node, executor, stats, max_pool_size=cfg.max_pool_size,
                          cold_wait_cap=cfg.cold_wait_cap, idle_safety_net=cfg.idle_safety_net,
-                         max_pool_bytes=cfg.max_pool_bytes)
+                         max_pool_bytes=cfg.max_pool_bytes, endpoints=endpoints)
         state = RestartState(cfg.runtime_dir, post=executor.post)
         if not self.restart:
             # The restart state is for a worker that died, not for a new gateway: a clean
             # (re)start begins with no subscriptions (and nothing to re-warm).
             state.discard()
         graph = GraphMonitor(node, pool, stats)
-        publishers = PublisherPool(node, executor, stats, pool, cfg.max_publishers, cfg.idle_safety_net,
+        publishers = PublisherPool(node, executor, stats, pool, endpoints, cfg.max_publishers, cfg.idle_safety_net,
                                    cfg.publish_match_wait)
         streams = StreamRegistry(zctx, cfg.runtime_dir, executor, pool, stats,
                                  max_subscriptions=cfg.max_subscriptions,
