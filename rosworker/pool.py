@@ -111,8 +111,6 @@ class TopicPool:
         self.nbytes = 0
         self.closing = False
         stats.pool_bytes_cap = max_pool_bytes
-        executor.cold_entries = lambda: list(self.cold.values())
-        executor.on_ready = self._on_ready
 
     # ---- reads --------------------------------------------------------------------------
     def sample(self, task: Task, topic: str, timeout: float, mode: str) -> None:
@@ -213,7 +211,11 @@ class TopicPool:
         if not entry.waiters:
             self.cold.pop(entry.topic, None)
 
-    def _on_ready(self, entry: Entry) -> None:
+    def cold_entries(self) -> list[Entry]:
+        """The entries callers wait on (the executor looks at each on every round: on_ready)."""
+        return list(self.cold.values())
+
+    def on_ready(self, entry: Entry) -> None:
         """A look at a cold entry (executor, every round while it has waiters)."""
         if entry.sub is None:
             return
@@ -302,7 +304,8 @@ class TopicPool:
         """
         infos = self.endpoints.publishers(topic)
         if not infos:
-            in_graph = self.endpoints.subscriber_count(topic) > 0 or bool(self.node.get_publishers_info_by_topic(topic))
+            in_graph = (self.endpoints.subscriber_count(topic) > 0
+                        or bool(self.node.get_publishers_info_by_topic(topic)))
             return None, ("no-publishers" if in_graph else "not-in-graph")
         types = collections.Counter(i.topic_type for i in infos)
         type_name = types.most_common(1)[0][0]
