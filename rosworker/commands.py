@@ -24,11 +24,12 @@ from ipc import events
 from ipc.errors import IpcError
 from ipc.topics import InvalidTopic, normalize_topic
 
-from . import convert
-from .executor import RosExecutor, Task
+from . import msgtypes
+from .executor import Task
 from .graph import GraphMonitor
 from .pool import BYTES_MODES, TopicPool
 from .publishers import PublisherPool
+from .schema import default_value, schema
 from .streams import StreamRegistry
 
 
@@ -75,14 +76,16 @@ def _number(args: dict, name: str, default: float, low: float, high: float) -> f
 
 
 class Commands:
-    def __init__(self, executor: RosExecutor, pool: TopicPool, graph: GraphMonitor,
-                 publishers: PublisherPool, streams: StreamRegistry, *, sample_timeout: float, debug: bool):
+    """The handlers of the queued commands; ``handlers`` (name -> handler) goes to the executor (main.py)."""
+
+    def __init__(self, pool: TopicPool, graph: GraphMonitor, publishers: PublisherPool,
+                 streams: StreamRegistry, *, sample_timeout: float, debug: bool):
         self.pool = pool
         self.graph = graph
         self.publishers = publishers
         self.streams = streams
         self.sample_timeout = sample_timeout
-        handlers = {
+        self.handlers: dict[str, Callable[[Task], None]] = {
             "sample": self.sample, "subscribe": self.subscribe, "evict": self.evict,
             "graph": self.graph_cmd, "publish": self.publish, "type_info": self.type_info,
             "pool": self.pool_cmd, "sub_create": self.sub_create, "sub_list": self.sub_list,
@@ -90,8 +93,7 @@ class Commands:
             "streams_report": self.streams_report,
         }
         if debug:
-            handlers["debug_sleep"] = self.debug_sleep
-        executor.handlers.update(handlers)
+            self.handlers["debug_sleep"] = self.debug_sleep
 
     @_topic_handler
     def sample(self, task: Task) -> None:
@@ -136,10 +138,10 @@ class Commands:
         if not isinstance(type_name, str):
             raise IpcError("bad-request", "type: missing required field")
         try:
-            cls = convert.load_type(type_name)
-            info: dict[str, Any] = {"type": type_name, "schema": convert.schema(cls),
-                                    "default_value": convert.default_value(cls)}
-        except convert.ConversionError as exc:
+            cls = msgtypes.load_type(type_name)
+            info: dict[str, Any] = {"type": type_name, "schema": schema(cls),
+                                    "default_value": default_value(cls)}
+        except msgtypes.ConversionError as exc:
             raise IpcError(exc.code, exc.message, {"type": type_name[:300]}) from None
         task.reply(info)
 

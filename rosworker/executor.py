@@ -13,8 +13,10 @@ queue or the task that runs.  (Sent to the work socket, they are answered at
 once when read, for older clients.)
 
 Sleeping: in one ``zmq.Poller.poll`` over the work socket and a wake-up pipe
-(written by :meth:`RosExecutor.stop`, which is async-signal-safe), with the
-next timer as the timeout.  While callers wait for the first message of a
+(written by :meth:`RosExecutor.stop`, which is async-signal-safe, by
+:meth:`RosExecutor.post`, and by ``signal.set_wakeup_fd`` when a signal comes:
+the worker's handler only records it, and ``stop_when`` tells the loop), with
+the next timer as the timeout.  While callers wait for the first message of a
 cold topic the timeout is at most ``COLD_POLL`` and each cold subscription is
 tried (``take``) on every round; so no rcl wait set and no guard condition
 are needed, and a pooled topic costs nothing between reads.
@@ -23,6 +25,11 @@ Timers (graph polling, idle sweep, cold-wait deadlines, stream ticks,
 publishers waiting for their subscribers) run on the same thread from a heap.
 Another thread hands work to this one with :meth:`RosExecutor.post` (the
 restart state's writer: the replies that waited for a write).
+
+Wiring: the other pieces are built on an executor (they set its timers), so
+what the loop runs is given to it after them, before :meth:`RosExecutor.run`,
+by ``rosworker/main.py`` only: the command handlers (:meth:`RosExecutor.serve`)
+and the pool's cold entries (:meth:`RosExecutor.watch_cold`).
 
 Containment: an exception in a task answers that task's caller with an
 error; an exception anywhere else on this thread (a timer, a cold-topic
@@ -40,7 +47,7 @@ import math
 import os
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import zmq
@@ -112,12 +119,14 @@ class RosExecutor:
     """Owns the ROS thread, the work socket, the task queue and the timers."""
 
     def __init__(self, zctx: zmq.Context, runtime_dir: str, stats: Stats, max_queue_depth: int,
-                 immediate: Callable[[str], dict[str, Any]] | None = None):
+                 immediate: Callable[[str], dict[str, Any]] | None = None,
+                 stop_when: Callable[[], bool] = lambda: False):
         self._zctx = zctx
         self.runtime_dir = runtime_dir
         self.stats = stats
         self.max_queue_depth = max_queue_depth
         self._immediate = immediate            # ping/stats sent to the work socket
+        self._stop_when = stop_when            # looked at every round: True ends the loop (a signal)
         self._queue: collections.deque[Task] = collections.deque()
         self._timers: list[tuple[float, int, Timer]] = []
         self._seq = itertools.count()
@@ -130,10 +139,10 @@ class RosExecutor:
         self._error_logged: dict[str, float] = {}
         self._slow_second = 0   # the second (monotonic) whose slow-command lines are counted
         self._slow_logged = 0
-        self.handlers: dict[str, Callable[[Task], None]] = {}
-        # Set by the pool: entries that callers wait on, and what to do with one.
-        self.cold_entries: Callable[[], list] = lambda: []
-        self.on_ready: Callable[[Any], None] = lambda entry: None
+        self._handlers: dict[str, Callable[[Task], None]] = {}
+        # Entries that callers wait on, and what to do with one (see watch_cold).
+        self._cold_entries: Callable[[], list] = lambda: []
+        self._on_ready: Callable[[Any], None] = lambda entry: None
         self.on_idle: Callable[[], None] = lambda: None
         self._posted: collections.deque[Callable[[], None]] = collections.deque()
 
@@ -163,7 +172,25 @@ class RosExecutor:
     def stopping(self) -> bool:
         return self._stopping.is_set()
 
+    @property
+    def wakeup_fd(self) -> int:
+        """The wake-up pipe's write end, for ``signal.set_wakeup_fd`` (non-blocking; valid until close())."""
+        return self._wake_w
+
     # ---- ROS thread: set-up ------------------------------------------------------------
+    def serve(self, handlers: Mapping[str, Callable[[Task], None]]) -> None:
+        """The queued commands this executor runs, by name (before :meth:`run`)."""
+        self._handlers = dict(handlers)
+
+    def watch_cold(self, entries: Callable[[], list], on_ready: Callable[[Any], None]) -> None:
+        """While ``entries()`` is not empty, ``on_ready(entry)`` is called for each on every round.
+
+        ``entries`` are what callers wait on (the pool's cold topics); the loop then polls
+        at most every ``COLD_POLL`` s (before :meth:`run`).
+        """
+        self._cold_entries = entries
+        self._on_ready = on_ready
+
     def bind(self) -> None:
         """Bind the work socket (call on the ROS thread before :meth:`run`)."""
         self._router = bind_router(self._zctx, self.runtime_dir, protocol.SOCKET_NAME)
@@ -293,7 +320,7 @@ class RosExecutor:
             if started > task.deadline:
                 raise IpcError("deadline-exceeded", "The request's deadline passed while it was queued",
                                {"command": task.cmd})
-            handler = self.handlers.get(task.cmd)
+            handler = self._handlers.get(task.cmd)
             if handler is None:
                 raise IpcError("unknown-command", f"Unknown command {task.cmd!r}")
             handler(task)
@@ -322,14 +349,17 @@ class RosExecutor:
                 self._read()
 
     def _wake_cold(self) -> None:
-        for entry in self.cold_entries():
-            self.guarded("a cold-topic wake-up", self.on_ready, entry)
+        for entry in self._cold_entries():
+            self.guarded("a cold-topic wake-up", self._on_ready, entry)
 
     def run(self) -> None:
-        """The ROS thread's loop. Returns after :meth:`stop`; :meth:`finish` does the rest."""
+        """The ROS thread's loop, until :meth:`stop` or ``stop_when()``; then :meth:`linger`, :meth:`close`."""
         while not self._stopping.is_set():
+            if self._stop_when():
+                self._stopping.set()
+                break
             timeout = 0.0 if self._queue else self._next_timeout()
-            cold = bool(self.cold_entries())
+            cold = bool(self._cold_entries())
             if cold:
                 timeout = min(timeout, COLD_POLL)
             events = dict(self._poller.poll(math.ceil(timeout * 1000)))

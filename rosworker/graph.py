@@ -15,6 +15,10 @@ The names of the last poll (``topics``) and ``epoch`` (bumped at each full
 re-check) let a stream's tick answer a topic nobody publishes without asking
 the graph (``rosworker/streams.py``): a name that is not in ``topics`` has no
 endpoint at all, and its answer only changes with ``generation``.
+
+:class:`Endpoints` lists a topic's publishers and subscribers without the
+gateway's own node (its pooled subscriptions, its publishers for PUT): the
+pool and the publishers count and type topics by it.
 """
 
 from __future__ import annotations
@@ -22,15 +26,40 @@ from __future__ import annotations
 import collections
 import logging
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from .pool import TopicPool
 from .stats import Stats
+
+if TYPE_CHECKING:  # the pool imports Endpoints from here
+    from .pool import TopicPool
 
 log = logging.getLogger("sovd.rosworker.graph")
 
 FULL_CHECK_EVERY = 1.0      # seconds between full pool re-checks
 SNAPSHOT_RECHECK_FOR = 10.0  # keep re-checking node detail this long after a graph request
+
+
+class Endpoints:
+    """A topic's endpoints as the graph lists them, the gateway's own node left out (ROS thread)."""
+
+    def __init__(self, node):
+        self.node = node
+        self.own = (node.get_name(), node.get_namespace())
+
+    def _foreign(self, infos: list) -> list:
+        own_name, own_ns = self.own
+        return [i for i in infos if i.node_name != own_name or i.node_namespace != own_ns]
+
+    def publishers(self, topic: str) -> list:
+        """``TopicEndpointInfo`` of the topic's publishers, the gateway's own left out."""
+        return self._foreign(self.node.get_publishers_info_by_topic(topic))
+
+    def subscribers(self, topic: str) -> list:
+        """``TopicEndpointInfo`` of the topic's subscribers, the gateway's own left out."""
+        return self._foreign(self.node.get_subscriptions_info_by_topic(topic))
+
+    def subscriber_count(self, topic: str) -> int:
+        return len(self.subscribers(topic))
 
 
 class GraphMonitor:

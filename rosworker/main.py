@@ -7,6 +7,17 @@ subscription and publisher and exits 0.
 
 Before anything else the worker arms its parent-death signal and exits (1)
 if the supervisor that started it is already gone (``ipc/pdeathsig.py``).
+So the module imports only light modules at its top: zmq, rclpy and the
+modules that load them (numpy, orjson; about 0.3 s) are imported inside
+:class:`Worker`, after the death signal is armed and the settings are read,
+and an orphaned or misconfigured worker exits without loading them
+(``tests/test_pdeathsig.py`` checks it).
+
+Wiring: :meth:`Worker._serve` builds every piece and passes each its
+collaborators and callbacks through its constructor; the executor, which the
+pieces need first (its timers), gets the command handlers and the pool's cold
+entries through :meth:`RosExecutor.serve` and :meth:`RosExecutor.watch_cold`,
+called there only.
 
 The runtime dir's lock: at the first boot a holder is another gateway's
 worker, and the worker refuses at once.  A restarted worker (the supervisor
@@ -28,6 +39,15 @@ import signal
 import sys
 import time
 from importlib import metadata
+
+from ipc import pdeathsig
+from ipc import settings as config
+from ipc.errors import IpcError
+
+from .graph import Endpoints, GraphMonitor, node_names
+from .requestlog import RequestIdFilter
+from .state import RestartState
+from .stats import Stats
 
 EXIT_OK = 0
 EXIT_ORPHANED = 1
@@ -54,8 +74,6 @@ def _version() -> str:
 
 
 def parse_args(argv: list[str] | None):
-    from ipc import settings as config
-
     parser = argparse.ArgumentParser(prog="sovd-rosworker",
                                      description="The gateway's ROS worker (normally started by sovd-gateway).")
     config.add_arguments(parser)
@@ -65,29 +83,22 @@ def parse_args(argv: list[str] | None):
 
 def restart_attempt(environ=os.environ) -> int:
     """Which restart this worker is (0: the first boot), as the supervisor said."""
-    from ipc.settings import RESTART_ENV
-
     try:
-        return max(0, int(environ.get(RESTART_ENV, "0")))
+        return max(0, int(environ.get(config.RESTART_ENV, "0")))
     except ValueError:
         return 0
 
 
 def main(argv: list[str] | None = None) -> int:
-    from ipc import pdeathsig
-    from ipc import settings as config_mod
-
     if not pdeathsig.arm():
         print("sovd-rosworker: the supervisor that started it is gone; not starting", file=sys.stderr)
         return EXIT_ORPHANED
     try:
         cfg = parse_args(argv)
-        config_mod.ensure_runtime_dir(cfg.runtime_dir)
-    except config_mod.ConfigError as exc:
+        config.ensure_runtime_dir(cfg.runtime_dir)
+    except config.ConfigError as exc:
         print(f"sovd-rosworker: {exc}", file=sys.stderr)
         return EXIT_CONFIG
-    from .requestlog import RequestIdFilter
-
     logging.basicConfig(level=cfg.log_level.upper(), stream=sys.stderr,
                         format="%(asctime)s rosworker[%(process)d] %(levelname)s %(name)s: "
                                "%(message)s%(request_tag)s")
@@ -103,15 +114,14 @@ class Worker:
         self._signal = None
 
     def _on_signal(self, signum, _frame) -> None:
-        self._signal = signum  # only record; the loop acts
-        executor = getattr(self, "executor", None)
-        if executor is not None:
-            executor.stop()
+        # Only record: the ROS loop wakes up (signal.set_wakeup_fd, see _serve) and stops.
+        self._signal = signum
+
+    def _signalled(self) -> bool:
+        return self._signal is not None
 
     def run(self) -> int:
-        import zmq
-
-        from ipc.server import RuntimeLock
+        from ipc.server import RuntimeLock  # loads zmq: imported after arming (module docstring)
 
         lock = RuntimeLock(self.cfg.runtime_dir)
         if not self._take_lock(lock):
@@ -119,13 +129,13 @@ class Worker:
         signal.signal(signal.SIGTERM, self._on_signal)
         signal.signal(signal.SIGINT, self._on_signal)
         try:
-            return self._serve(zmq)
+            return self._serve()
         finally:
             lock.release()
 
     def _take_lock(self, lock) -> bool:
         """The runtime dir's lock: at once at the first boot, within LOCK_WAIT after a restart."""
-        from ipc.server import LockHeld
+        from ipc.server import LockHeld  # loads zmq: imported after arming (module docstring)
 
         wait = LOCK_WAIT if self.restart else 0.0
         started = time.monotonic()
@@ -149,19 +159,18 @@ class Worker:
                 log.info("took the runtime dir's lock after %.1f s", time.monotonic() - started)
             return True
 
-    def _serve(self, zmq) -> int:
+    def _serve(self) -> int:
+        # zmq, rclpy, numpy and orjson: imported after arming (see the module's docstring).
         import rclpy
+        import zmq
         from rclpy.node import Node
 
         from ipc.server import ControlServer
 
         from .commands import Commands
         from .executor import RosExecutor
-        from .graph import GraphMonitor
         from .pool import TopicPool
         from .publishers import PublisherPool
-        from .state import RestartState
-        from .stats import Stats
         from .streams import StreamRegistry
 
         cfg = self.cfg
@@ -174,6 +183,8 @@ class Worker:
             log.error("rclpy could not start: %s", exc)
             return EXIT_CANNOT_BOOT
 
+        # The pieces, each given what it uses.  The executor comes first: everything else
+        # sets its timers on it.
         stats = Stats(pool_cap=cfg.max_pool_size, cold_wait_cap=cfg.cold_wait_cap,
                       watchdog_threshold_ms=cfg.watchdog_threshold)
         zctx = zmq.Context()
@@ -181,27 +192,39 @@ class Worker:
             "version": _version(), "node": node.get_fully_qualified_name(),
             "started_at": time.time_ns(), "domain_id": context.get_domain_id(),
         })
-        executor = RosExecutor(zctx, cfg.runtime_dir, stats, cfg.max_queue_depth, immediate=control.answer)
+        executor = RosExecutor(zctx, cfg.runtime_dir, stats, cfg.max_queue_depth, immediate=control.answer,
+                               stop_when=self._signalled)
+        # A signal writes to the executor's wake-up pipe, so the loop wakes up and sees it at once.
+        signal.set_wakeup_fd(executor.wakeup_fd, warn_on_full_buffer=False)
+        endpoints = Endpoints(node)
         pool = TopicPool(node, executor, stats, max_pool_size=cfg.max_pool_size,
                          cold_wait_cap=cfg.cold_wait_cap, idle_safety_net=cfg.idle_safety_net,
-                         max_pool_bytes=cfg.max_pool_bytes)
+                         max_pool_bytes=cfg.max_pool_bytes, endpoints=endpoints)
         state = RestartState(cfg.runtime_dir, post=executor.post)
         if not self.restart:
             # The restart state is for a worker that died, not for a new gateway: a clean
             # (re)start begins with no subscriptions (and nothing to re-warm).
             state.discard()
         graph = GraphMonitor(node, pool, stats)
-        publishers = PublisherPool(node, executor, stats, pool, cfg.max_publishers, cfg.idle_safety_net,
-                                   cfg.publish_match_wait)
+        publishers = PublisherPool(node, executor, stats, pool, endpoints, cfg.max_publishers,
+                                   cfg.idle_safety_net, cfg.publish_match_wait)
+
+        def save_state(then=None) -> None:
+            # Hands the state to the writer thread; no serialisation of the registry here.
+            # ``streams`` is the registry made below: it calls this only after a change.
+            state.submit(pool.restart_topics(), graph.nodes, streams.version, streams.records, then)
+
         streams = StreamRegistry(zctx, cfg.runtime_dir, executor, pool, stats,
                                  max_subscriptions=cfg.max_subscriptions,
                                  max_per_client=cfg.max_subscriptions_per_client, graph=graph,
-                                 max_duration=cfg.max_stream_duration, sample_timeout=cfg.sample_timeout)
-        Commands(executor, pool, graph, publishers, streams, sample_timeout=cfg.sample_timeout,
-                 debug=cfg.debug_commands)
-        self.executor = executor
-        if self._signal is not None:
-            executor.stop()
+                                 max_duration=cfg.max_stream_duration, sample_timeout=cfg.sample_timeout,
+                                 save=save_state)
+        commands = Commands(pool, graph, publishers, streams, sample_timeout=cfg.sample_timeout,
+                            debug=cfg.debug_commands)
+        # What the executor's loop runs: the queued commands, and a look at each topic that
+        # callers wait on (its first message) on every round.
+        executor.serve(commands.handlers)
+        executor.watch_cold(pool.cold_entries, pool.on_ready)
 
         def every(seconds: float, fn):
             def tick():
@@ -216,13 +239,7 @@ class Worker:
         if cfg.idle_safety_net:
             every(cfg.idle_sweep_tick, pool.sweep_idle)
             every(cfg.idle_sweep_tick, publishers.sweep_idle)
-        def save_state(then=None) -> None:
-            # Hands the state to the writer thread; no serialisation of the registry here.
-            state.submit(pool.restart_topics(), graph.nodes, streams.version, streams.records, then)
-
         every(STATE_SAVE_EVERY, save_state)
-        streams.on_change = save_state
-        streams.after_save = save_state
         if rewarm:
             self._rewarm(executor, pool, rewarm, time.monotonic() + REWARM_FOR)
         streams.restore(subscriptions)
@@ -234,6 +251,7 @@ class Worker:
             control.start()
         except Exception as exc:
             log.error("cannot serve IPC on %s: %s", cfg.runtime_dir, exc)
+            signal.set_wakeup_fd(-1)  # before the executor closes the pipe
             executor.close()
             node.destroy_node()
             rclpy.try_shutdown(context=context)
@@ -255,6 +273,7 @@ class Worker:
             executor.linger()
         finally:
             streams.close()
+            signal.set_wakeup_fd(-1)  # before the executor closes the pipe
             executor.close()
             control.finish()
             node.destroy_node()
@@ -275,8 +294,6 @@ class Worker:
         before, so only the quiet period counts (gunicorn, started next, takes
         longer than SETTLE_MIN to answer anyway).
         """
-        from .graph import node_names
-
         own = (node.get_name(), node.get_namespace())
         least = SETTLE_MIN if self.restart else 0.0
         started = time.monotonic()
@@ -297,8 +314,6 @@ class Worker:
 
     def _rewarm(self, executor, pool, topics: list[str], until: float) -> None:
         """Subscribe again to the topics pooled before a restart, as their publishers are discovered."""
-        from ipc.errors import IpcError
-
         def pooled(topic: str) -> bool:
             try:
                 return pool.subscribe(topic)["status"] == "pooled"

@@ -23,7 +23,7 @@ byte budget the cached JSON of the least recently read entries goes first,
 then whole entries.
 
 The gateway's own endpoints (its subscriptions here, its publishers for PUT)
-never count as a topic's publishers or subscribers.
+never count as a topic's publishers or subscribers (``graph.Endpoints``).
 
 Evictions: graph change (no publisher left, or the type changed), LRU at
 the cap (never an entry somebody waits on: when every entry has waiters, a
@@ -43,8 +43,10 @@ from rclpy.serialization import deserialize_message
 
 from ipc.errors import IpcError
 
-from . import convert, qos
+from . import msgtypes, qos
+from .encode import to_json
 from .executor import RosExecutor, Task, Timer
+from .graph import Endpoints
 from .stats import Stats
 
 log = logging.getLogger("sovd.rosworker.pool")
@@ -91,15 +93,16 @@ class Entry:
 
 class TopicPool:
     def __init__(self, node, executor: RosExecutor, stats: Stats, *, max_pool_size: int,
-                 cold_wait_cap: int, idle_safety_net: float, max_pool_bytes: int = 256 * 2**20):
+                 cold_wait_cap: int, idle_safety_net: float, max_pool_bytes: int = 256 * 2**20,
+                 endpoints: Endpoints | None = None):
         self.node = node
+        self.endpoints = endpoints or Endpoints(node)
         self.executor = executor
         self.stats = stats
         self.max_pool_size = max_pool_size
         self.max_pool_bytes = max_pool_bytes
         self.cold_wait_cap = cold_wait_cap
         self.idle_safety_net = idle_safety_net
-        self.own = (node.get_name(), node.get_namespace())
         self.entries: collections.OrderedDict[str, Entry] = collections.OrderedDict()
         self.cold: dict[str, Entry] = {}           # entries with waiters
         self.unsupported: collections.OrderedDict[str, None] = collections.OrderedDict()
@@ -108,20 +111,6 @@ class TopicPool:
         self.nbytes = 0
         self.closing = False
         stats.pool_bytes_cap = max_pool_bytes
-        executor.cold_entries = lambda: list(self.cold.values())
-        executor.on_ready = self._on_ready
-
-    # ---- the graph, without the gateway's own endpoints --------------------------------
-    def _foreign(self, infos: list) -> list:
-        own_name, own_ns = self.own
-        return [i for i in infos if i.node_name != own_name or i.node_namespace != own_ns]
-
-    def publishers(self, topic: str) -> list:
-        """``TopicEndpointInfo`` of the topic's publishers, the gateway's own left out."""
-        return self._foreign(self.node.get_publishers_info_by_topic(topic))
-
-    def subscriber_count(self, topic: str) -> int:
-        return len(self._foreign(self.node.get_subscriptions_info_by_topic(topic)))
 
     # ---- reads --------------------------------------------------------------------------
     def sample(self, task: Task, topic: str, timeout: float, mode: str) -> None:
@@ -222,7 +211,11 @@ class TopicPool:
         if not entry.waiters:
             self.cold.pop(entry.topic, None)
 
-    def _on_ready(self, entry: Entry) -> None:
+    def cold_entries(self) -> list[Entry]:
+        """The entries callers wait on (the executor looks at each on every round: on_ready)."""
+        return list(self.cold.values())
+
+    def on_ready(self, entry: Entry) -> None:
         """A look at a cold entry (executor, every round while it has waiters)."""
         if entry.sub is None:
             return
@@ -264,7 +257,7 @@ class TopicPool:
 
     def _convert(self, entry: Entry, mode: str) -> bytes:
         try:
-            return convert.to_json(deserialize_message(entry.raw, entry.cls), mode)
+            return to_json(deserialize_message(entry.raw, entry.cls), mode)
         except Exception as exc:  # rclpy raises several types for bad CDR; convert its own
             self.stats.undecodable_messages += 1
             if entry.topic not in self.undecodable:
@@ -290,8 +283,8 @@ class TopicPool:
         else:
             # The type comes from the graph whatever the endpoint kind (as medkit's does): a
             # command input with subscribers only still says what to PUT to it.
-            pubs = self.publishers(topic)
-            subs = self._foreign(self.node.get_subscriptions_info_by_topic(topic))
+            pubs = self.endpoints.publishers(topic)
+            subs = self.endpoints.subscribers(topic)
             types = collections.Counter(i.topic_type for i in pubs or subs if i.topic_type)
             type_name = types.most_common(1)[0][0] if types else None
             counts = (len(pubs), len(subs))
@@ -309,17 +302,18 @@ class TopicPool:
         warm faster than new subscriptions get their first message: the pool would thrash
         and warm reads would be refused too.
         """
-        infos = self.publishers(topic)
+        infos = self.endpoints.publishers(topic)
         if not infos:
-            in_graph = self.subscriber_count(topic) > 0 or bool(self.node.get_publishers_info_by_topic(topic))
+            in_graph = (self.endpoints.subscriber_count(topic) > 0
+                        or bool(self.node.get_publishers_info_by_topic(topic)))
             return None, ("no-publishers" if in_graph else "not-in-graph")
         types = collections.Counter(i.topic_type for i in infos)
         type_name = types.most_common(1)[0][0]
         if type_name in self.unsupported:
             return None, "unsupported-type"
         try:
-            cls = convert.load_type(type_name)
-        except convert.ConversionError:
+            cls = msgtypes.load_type(type_name)
+        except msgtypes.ConversionError:
             self._mark_unsupported(type_name)
             return None, "unsupported-type"
         previous = self.last_types.get(topic)
@@ -337,7 +331,7 @@ class TopicPool:
                                {"topic": topic, "max_pool_size": self.max_pool_size})
         entry = Entry(topic, type_name, cls)
         entry.publisher_count = len(infos)
-        entry.subscriber_count = self.subscriber_count(topic)
+        entry.subscriber_count = self.endpoints.subscriber_count(topic)
         same_type = [i for i in infos if i.topic_type == type_name]
         entry.sub, entry.profile = self._subscribe(entry, same_type)
         entry.matched = entry.sub.handle.get_publisher_count()
@@ -452,7 +446,7 @@ class TopicPool:
         if not (full or matched != entry.matched):
             return
         entry.matched = matched
-        infos = self.publishers(entry.topic)
+        infos = self.endpoints.publishers(entry.topic)
         if not infos:
             self.evict(entry, "graph")
             return
@@ -463,7 +457,7 @@ class TopicPool:
             self.evict(entry, "type_change")
             return
         entry.publisher_count = len(infos)
-        entry.subscriber_count = self.subscriber_count(entry.topic)
+        entry.subscriber_count = self.endpoints.subscriber_count(entry.topic)
         same_type = [i for i in infos if i.topic_type == entry.type_name]
         if qos.key(qos.match_qos(same_type)) != qos.key(entry.profile):
             self._rebuild(entry, same_type)

@@ -34,8 +34,10 @@ import time
 
 from ipc.errors import IpcError
 
-from . import convert, qos
+from . import msgtypes, qos
+from .decode import from_plain
 from .executor import RosExecutor, Task, Timer
+from .graph import Endpoints
 from .pool import TopicPool
 from .stats import Stats
 
@@ -55,12 +57,13 @@ class Pooled:
 
 
 class PublisherPool:
-    def __init__(self, node, executor: RosExecutor, stats: Stats, pool: TopicPool, max_publishers: int,
-                 idle_safety_net: float = 0.0, match_wait: float = 1.0):
+    def __init__(self, node, executor: RosExecutor, stats: Stats, pool: TopicPool, endpoints: Endpoints,
+                 max_publishers: int, idle_safety_net: float = 0.0, match_wait: float = 1.0):
         self.node = node
         self.executor = executor
         self.stats = stats
         self.pool = pool
+        self.endpoints = endpoints
         self.max_publishers = max_publishers
         self.idle_safety_net = idle_safety_net
         self.match_wait = match_wait
@@ -69,13 +72,13 @@ class PublisherPool:
 
     def publish(self, task: Task, topic: str, type_name: str, data: dict) -> None:
         try:
-            cls = convert.load_type(type_name)
-            msg = convert.from_plain(cls, data)
-        except convert.ConversionError as exc:
+            cls = msgtypes.load_type(type_name)
+            msg = from_plain(cls, data)
+        except msgtypes.ConversionError as exc:
             params = {"details": exc.message, "type": type_name} if exc.code == "invalid-type" else {}
             raise IpcError(exc.code, "Invalid message type format" if exc.code == "invalid-type"
                            else exc.message, params) from None
-        subscribers = self.pool._foreign(self.node.get_subscriptions_info_by_topic(topic))
+        subscribers = self.endpoints.subscribers(topic)
         self._check_type(topic, type_name, subscribers)
         profile = qos.publisher_qos(subscribers)
         current = self.entries.get(topic)
@@ -124,7 +127,7 @@ class PublisherPool:
         endpoints (the gateway's own left out) accepts any type; a topic with
         endpoints of several types accepts each of them.
         """
-        types = {i.topic_type for i in (*subscribers, *self.pool.publishers(topic)) if i.topic_type}
+        types = {i.topic_type for i in (*subscribers, *self.endpoints.publishers(topic)) if i.topic_type}
         if types and type_name not in types:
             used = ", ".join(sorted(types))
             raise IpcError("type-mismatch", f"{topic} carries {used} (the type of its publishers and "

@@ -44,12 +44,12 @@ wall clock neither ends a subscription early nor keeps it for ever.
 state, where the wall clock is the clock the next worker shares.
 
 Saving: each subscription's restart record (its JSON) is made once, when it
-is created or changed; after a change ``on_change`` hands the list of records
+is created or changed; after a change ``save()`` hands the list of records
 (a copy of references, not a serialisation) to the restart state's writer
 thread (``rosworker/state.py``), and a command that changed the registry is
-answered once the writer has written it (``when_saved``): a subscription that
-was answered survives a ROS worker killed right after, and the ROS thread's
-cost of a change does not grow with the registry.
+answered once the writer has written it (``when_saved``: ``save(then)``): a
+subscription that was answered survives a ROS worker killed right after, and
+the ROS thread's cost of a change does not grow with the registry.
 """
 
 from __future__ import annotations
@@ -119,6 +119,11 @@ class Subscription:
         return events.data_key(self.interval, self.bytes, self.topic)
 
 
+def _saved_at_once(then: Callable[[], None] | None = None) -> None:
+    if then is not None:
+        then()
+
+
 class _Watch:
     """A ``(topic, bytes mode)`` watched at one interval: when it was first ticked."""
 
@@ -132,7 +137,8 @@ class _Watch:
 class StreamRegistry:
     def __init__(self, zctx: zmq.Context, runtime_dir: str, executor: RosExecutor, pool: TopicPool,
                  stats: Stats, *, max_subscriptions: int, max_duration: int, sample_timeout: float,
-                 max_per_client: int | None = None, graph: GraphMonitor | None = None):
+                 max_per_client: int | None = None, graph: GraphMonitor | None = None,
+                 save: Callable[[Callable[[], None] | None], None] | None = None):
         self.zctx = zctx
         self.runtime_dir = runtime_dir
         self.executor = executor
@@ -153,10 +159,10 @@ class StreamRegistry:
         self._expiry: dict[str, Timer] = {}
         self._pub: zmq.Socket | None = None
         self._reports: dict[int, tuple[float, dict[str, int]]] = {}
-        # Called after every change of the registry: hands the records to the restart state's writer.
-        self.on_change: Callable[[], None] = lambda: None
-        # Runs its argument once what on_change handed over is written (see when_saved).
-        self.after_save: Callable[[Callable[[], None]], None] = lambda then: then()
+        # save(): after every change of the registry, hands the records to the restart state's
+        # writer; save(then) also runs ``then`` once they are written (see when_saved).
+        # Without it (a registry that is not kept), ``then`` runs at once.
+        self._save = save or _saved_at_once
         stats.max_subscriptions = max_subscriptions
 
     # ---- set-up (ROS thread, before the loop) ---------------------------------------------
@@ -211,7 +217,7 @@ class StreamRegistry:
             once()
 
         timer = self.executor.call_later(SAVE_WAIT, late)
-        self.after_save(once)
+        self._save(once)
 
     def close(self) -> None:
         if self._pub is not None:
@@ -237,7 +243,7 @@ class StreamRegistry:
                            created_at_ns=time.time_ns(), client=client, deadline=time.monotonic() + duration)
         self._add(sub)
         self.stats.subscriptions_created += 1
-        self.on_change()
+        self._save()
         return sub.wire()
 
     def get(self, collection: str, entity_id: str, sub_id: str) -> Subscription:
@@ -265,7 +271,7 @@ class StreamRegistry:
         self._records[sub.id] = sub.record()
         self.version += 1
         self._control(sub, "updated")
-        self.on_change()
+        self._save()
         return sub.wire()
 
     def delete(self, collection: str, entity_id: str, sub_id: str) -> None:
@@ -310,7 +316,7 @@ class StreamRegistry:
             timer.cancel()
         self.stats.active_subscriptions = len(self.subs)
         self._control(sub, event)
-        self.on_change()
+        self._save()
 
     def _arm_expiry(self, sub: Subscription) -> None:
         old = self._expiry.pop(sub.id, None)

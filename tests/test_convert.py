@@ -1,4 +1,7 @@
-"""Tests for rosworker.convert, against the real generated ROS 2 message classes."""
+"""Tests for the message conversions (rosworker/: msgtypes, encode, decode, schema).
+
+They run against the real generated ROS 2 message classes.
+"""
 
 from __future__ import annotations
 
@@ -36,19 +39,17 @@ from std_msgs.msg import (
 )
 from unique_identifier_msgs.msg import UUID
 
-from rosworker import convert
-from rosworker.convert import (
+from rosworker.decode import from_plain
+from rosworker.encode import to_json, to_plain
+from rosworker.msgtypes import (
     TYPE_RE,
     ConversionError,
+    _plan,
     check_type_name,
-    default_value,
-    from_plain,
     load_type,
-    schema,
-    to_json,
-    to_plain,
     type_name,
 )
+from rosworker.schema import _schema, default_value, schema
 
 
 def roundtrip_wire(msg):
@@ -627,5 +628,5 @@ def test_schema_validates_non_finite_samples():
 
 
 def test_internal_caches_are_per_class():
-    assert convert._plan(Image) is convert._plan(Image)
-    assert convert._schema(Image, "array") is convert._schema(Image, "array")
+    assert _plan(Image) is _plan(Image)
+    assert _schema(Image, "array") is _schema(Image, "array")

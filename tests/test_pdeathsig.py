@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
 import sys
 from pathlib import Path
 
@@ -83,6 +84,21 @@ def test_ros_worker_without_its_supervisor_does_not_start(tmp_path):
         assert not os.path.exists(os.path.join(runtime, "rosworker.sock"))  # it never served
     finally:
         worker.stop()
+
+
+# What the ROS worker has loaded when main() arms its death signal: only what importing the module
+# loads (the heavy modules come inside Worker, after arming and the settings; rosworker/main.py).
+LOADED_AT_ARM = """
+import sys
+import rosworker.main
+print(",".join(m for m in ("zmq", "rclpy", "numpy", "orjson") if m in sys.modules))
+"""
+
+
+def test_ros_worker_arms_its_death_signal_before_loading_rclpy_or_zmq():
+    out = subprocess.run([sys.executable, "-c", LOADED_AT_ARM], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "", f"loaded by importing rosworker.main: {out.stdout.strip()}"
 
 
 def test_gunicorn_master_without_its_supervisor_does_not_start(tmp_path):

@@ -21,7 +21,7 @@ def main() -> int:
     topics = json.loads(sys.argv[1])
     import rclpy
 
-    from rosworker import convert, qos
+    from rosworker import msgtypes, qos
 
     node, stop = rosmain.start("bench_dds_floor", start_parameter_services=False, enable_rosout=False)
     subs = []
@@ -31,7 +31,7 @@ def main() -> int:
         if not infos:
             print(f"no publisher on {topic}", flush=True)
             return 1
-        cls = convert.load_type(infos[0].topic_type)
+        cls = msgtypes.load_type(infos[0].topic_type)
         subs.append(node.create_subscription(cls, topic, lambda _m: None, qos.match_qos(infos)))
     print("READY", flush=True)
     while not stop.wait(0.5):

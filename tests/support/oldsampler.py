@@ -29,7 +29,7 @@ def main() -> int:
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
-    from rosworker import convert, qos
+    from rosworker import msgtypes, qos
 
     node, stop = rosmain.start("bench_old_sampler", start_parameter_services=False, enable_rosout=False)
     executor = SingleThreadedExecutor()
@@ -38,7 +38,7 @@ def main() -> int:
     if not infos:
         print(json.dumps({"error": f"no publisher on {topic}"}), flush=True)
         return 1
-    cls = convert.load_type(infos[0].topic_type)
+    cls = msgtypes.load_type(infos[0].topic_type)
     profile = qos.match_qos(infos)
     print("READY", flush=True)
 
