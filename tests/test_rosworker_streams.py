@@ -81,14 +81,15 @@ class Setup:
         self.graph = GraphMonitor(self.node, self.pool, self.stats)
         options = {"max_subscriptions": 100, "max_per_client": None, "max_duration": 3600,
                    "sample_timeout": 0.3, **limits}
-        self.registry = StreamRegistry(ros.zctx, ros.runtime_dir, ros.executor, self.pool, self.stats,
-                                       graph=self.graph, **options)
         self.changes = 0
 
-        def changed() -> None:
+        def changed(then=None) -> None:  # the restart state's writer, written at once
             self.changes += 1
+            if then is not None:
+                then()
 
-        self.registry.on_change = changed
+        self.registry = StreamRegistry(ros.zctx, ros.runtime_dir, ros.executor, self.pool, self.stats,
+                                       graph=self.graph, save=changed, **options)
         ros.call(self.graph.tick)
         ros.call(self.registry.bind)
         self.sub = ros.zctx.socket(zmq.SUB)
