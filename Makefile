@@ -27,7 +27,7 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -n $(TEST_JOBS) --dist loadfile $(PYTEST_ARGS)
 
 lint: $(STAMP)
-	$(BIN)/ruff check app rosworker ipc demo tests bench
+	$(BIN)/ruff check app supervisor rosworker ipc common demo tests bench
 
 bench: $(STAMP)
 	$(BIN)/python -m bench.run

@@ -637,7 +637,7 @@ def table(rows: list[dict[str, Any]]) -> str:
 
 
 def settings() -> dict[str, Any]:
-    from ipc import settings as config
+    from common import settings as config
     cfg = config.load(None, environ={})
     info = {"workers": cfg.workers, "worker_connections": cfg.worker_connections,
             "sample_timeout": cfg.sample_timeout,

@@ -6,7 +6,7 @@ stops taking work, wakes every waiter, drains what is queued, destroys every
 subscription and publisher and exits 0.
 
 Before anything else the worker arms its parent-death signal and exits (1)
-if the supervisor that started it is already gone (``ipc/pdeathsig.py``).
+if the supervisor that started it is already gone (``common/pdeathsig.py``).
 
 The runtime dir's lock: at the first boot a holder is another gateway's
 worker, and the worker refuses at once.  A restarted worker (the supervisor
@@ -54,7 +54,7 @@ def _version() -> str:
 
 
 def parse_args(argv: list[str] | None):
-    from ipc import settings as config
+    from common import settings as config
 
     parser = argparse.ArgumentParser(prog="sovd-rosworker",
                                      description="The gateway's ROS worker (normally started by sovd-gateway).")
@@ -65,7 +65,7 @@ def parse_args(argv: list[str] | None):
 
 def restart_attempt(environ=os.environ) -> int:
     """Which restart this worker is (0: the first boot), as the supervisor said."""
-    from ipc.settings import RESTART_ENV
+    from common.settings import RESTART_ENV
 
     try:
         return max(0, int(environ.get(RESTART_ENV, "0")))
@@ -74,8 +74,8 @@ def restart_attempt(environ=os.environ) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from ipc import pdeathsig
-    from ipc import settings as config_mod
+    from common import pdeathsig
+    from common import settings as config_mod
 
     if not pdeathsig.arm():
         print("sovd-rosworker: the supervisor that started it is gone; not starting", file=sys.stderr)

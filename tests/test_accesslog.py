@@ -19,7 +19,7 @@ import uuid
 import pytest
 
 from app import accesslog
-from ipc import settings
+from common import settings
 from tests.support.gateway import Gateway
 from tests.support.procs import poll_until
 

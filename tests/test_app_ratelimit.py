@@ -13,7 +13,7 @@ import pytest
 
 from app import openapi, ratelimit
 from app.clientaddr import Trusted, client_address
-from ipc import settings
+from common import settings
 from tests.support.fakeworker import ROBOT, FakeWorker, make_app
 from tests.test_app_openapi import check
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import psutil
 import pytest
 
-from app import cli
+from supervisor import cli
 from tests.support.gateway import Gateway
 from tests.support.procs import REPO, Proc, free_port, poll_until
 

@@ -6,7 +6,7 @@ import argparse
 
 import pytest
 
-from ipc import settings as config
+from common import settings as config
 
 
 def load(argv=(), env=None, toml: str | None = None, tmp_path=None):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ast
 import re
 import subprocess
 import sys
@@ -33,7 +34,7 @@ def test_only_the_ros_worker_creates_subscriptions_publishers_or_callback_groups
 
 
 def test_the_http_side_and_ipc_never_import_rclpy():
-    offenders = [str(p.relative_to(REPO)) for p in python_files("app", "ipc")
+    offenders = [str(p.relative_to(REPO)) for p in python_files("app", "supervisor", "ipc", "common")
                  if IMPORTS_RCLPY.search(p.read_text())]
     assert not offenders, f"rclpy imported on the HTTP side: {offenders}"
 
@@ -46,18 +47,62 @@ def test_the_gate_itself_catches_an_offender():
 
 
 def test_gevent_stays_out_of_the_ros_worker_and_the_supervisor():
-    """Only the HTTP workers use gevent (app/http_worker.py patches them after the fork)."""
-    files = [*python_files("rosworker"), REPO / "app" / "supervisor.py", REPO / "app" / "children.py"]
+    """Only the HTTP workers use gevent (app/http_worker.py patches them after the fork).
+
+    The supervisor's children are plain processes started by exec; ``common/`` is loaded by
+    all three, so it stays free of gevent too."""
+    files = [*python_files("rosworker", "supervisor", "common")]
     offenders = [str(p.relative_to(REPO)) for p in files if "gevent" in p.read_text()]
     assert not offenders, f"gevent named outside the HTTP workers: {offenders}"
 
 
-# Imported for real (not grepped): rosworker/ and ipc/ load nothing from app/, so the HTTP side
+# One package per process (supervisor/, app/, rosworker/), the wire (ipc/) and what all three share
+# (common/): which of the gateway's packages each may import.  Read from the source (every import
+# statement, function-level ones too), so that a wrong-way import fails here before it is used.
+OURS = ("app", "supervisor", "rosworker", "ipc", "common", "demo", "bench", "tests")
+MAY_IMPORT = {
+    "common": set(),
+    "ipc": set(),
+    "app": {"ipc", "common"},
+    "supervisor": {"ipc", "common"},
+    "rosworker": {"ipc", "common"},
+    "demo": {"supervisor"},  # demo/run.py starts the demo robot with the supervisor's Child
+}
+
+
+def imported_packages(path) -> set[str]:
+    """The top-level names ``path`` imports absolutely (relative imports stay in its package)."""
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names.update(alias.name.split(".")[0] for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names.add(node.module.split(".")[0])
+    return names
+
+
+def test_each_package_imports_only_the_packages_below_it():
+    offenders = []
+    for top, allowed in MAY_IMPORT.items():
+        for path in python_files(top):
+            wrong = {n for n in imported_packages(path) if n in OURS and n != top} - allowed
+            if wrong:
+                offenders.append(f"{path.relative_to(REPO)} imports {sorted(wrong)}")
+    assert not offenders, "imports against the layout:\n" + "\n".join(offenders)
+
+
+def test_the_import_gate_reads_function_level_imports(tmp_path):
+    probe = tmp_path / "mod.py"
+    probe.write_text("from . import sibling\ndef f():\n    from app.wsgi import create_app\n    import ipc.protocol\n")
+    assert imported_packages(probe) == {"app", "ipc"}
+
+
+# Imported for real (not grepped): rosworker/, supervisor/, ipc/ and common/ load nothing from app/, so the HTTP side
 # may change (Flask, gunicorn, gevent) without touching the process that owns rclpy.
 CHECK = r"""
 import importlib, pkgutil, sys
-import ipc, rosworker
-for pkg in (ipc, rosworker):
+import common, ipc, rosworker, supervisor
+for pkg in (common, ipc, rosworker, supervisor):
     for mod in pkgutil.iter_modules(pkg.__path__):
         importlib.import_module(f"{pkg.__name__}.{mod.name}")
 loaded = sorted(m for m in sys.modules if m == "app" or m.startswith("app."))
@@ -65,7 +110,7 @@ print(",".join(loaded))
 """
 
 
-def test_rosworker_and_ipc_import_nothing_from_app():
+def test_rosworker_supervisor_ipc_and_common_import_nothing_from_app():
     out = subprocess.run([sys.executable, "-c", CHECK], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == "", f"modules of app/ imported by rosworker/ or ipc/: {out.stdout.strip()}"
+    assert out.stdout.strip() == "", f"modules of app/ imported outside the HTTP workers: {out.stdout.strip()}"

@@ -1,4 +1,4 @@
-"""ipc/pdeathsig.py: a child arms its own parent-death signal, and refuses to start without its parent.
+"""common/pdeathsig.py: a child arms its own parent-death signal, and refuses to start without its parent.
 
 Real processes throughout: a stand-in supervisor that starts a child and is then SIGKILLed, and the
 real ``sovd-rosworker`` and gunicorn master started as if their supervisor had already died.
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import psutil
 
-from ipc import pdeathsig
+from common import pdeathsig
 from tests.support.procs import Proc, free_port, poll_until
 
 BIN = Path(sys.executable).parent
@@ -21,7 +21,7 @@ BIN = Path(sys.executable).parent
 # The child: arms what its environment says, reports, and records the signal it dies of.
 CHILD = """
 import signal, sys, time
-from ipc import pdeathsig
+from common import pdeathsig
 def died(sig, _frame):
     open(sys.argv[1], "w").write(signal.Signals(sig).name)
     sys.exit(0)
@@ -32,7 +32,7 @@ time.sleep(60)
 # The stand-in supervisor: starts the child with pdeathsig.child_env(), nothing between fork and exec.
 PARENT = """
 import os, signal, subprocess, sys, time
-from ipc import pdeathsig
+from common import pdeathsig
 child = subprocess.Popen([sys.executable, "-c", sys.argv[1], sys.argv[2]],
                          env={**os.environ, **pdeathsig.child_env(signal.SIGTERM)})
 print(child.pid, flush=True)

@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from ipc.settings import RESTART_ENV
+from common.settings import RESTART_ENV
 from tests.support.gateway import Gateway
 from tests.support.procs import RosNode, poll_until, publisher, unique_topic
 from tests.support.rosworker import SHADOW, RosWorker

@@ -1,4 +1,4 @@
-"""app/sdnotify.py against real unix datagram sockets (path and abstract names)."""
+"""supervisor/sdnotify.py against real unix datagram sockets (path and abstract names)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import uuid
 
 import pytest
 
-from app import sdnotify
-from app.sdnotify import Notifier, child_env
+from supervisor import sdnotify
+from supervisor.sdnotify import Notifier, child_env
 
 
 class Listener:

@@ -235,7 +235,7 @@ def test_children_get_resolved_settings_and_no_notify_socket(notify):
         assert env["SOVD_WORKERS"] == "1"
         assert env["SOVD_RUNTIME_DIR"] == gw.runtime_dir
         assert "NOTIFY_SOCKET" not in env
-        # each child arms its own parent-death signal against the supervisor (ipc/pdeathsig.py)
+        # each child arms its own parent-death signal against the supervisor (common/pdeathsig.py)
         assert env["SOVD_SUPERVISOR_PID"] == str(gw.pid)
         assert env["SOVD_PARENT_DEATH_SIGNAL"] == str(int(signal.SIGKILL))
         http = [c for c in psutil.Process(gw.pid).children() if c.pid != w.pid]

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from app import cli, supervisor
-from ipc import settings as config
+from common import settings as config
+from supervisor import cli, supervisor
 from tests.support.procs import REPO
 
 UNIT = REPO / "systemd" / "sovd-gateway.service"

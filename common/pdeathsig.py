@@ -3,7 +3,7 @@
 The supervisor never runs code between fork and exec (it has threads by
 then: ZeroMQ's, and ``preexec_fn`` is unsafe after fork in a threaded
 process).  Instead it puts two variables into a child's environment
-(:func:`child_env`, called by ``app/children.py``): its own pid and the signal
+(:func:`child_env`, called by ``supervisor/children.py``): its own pid and the signal
 the child should get when it dies.  The child calls :func:`arm` first thing,
 on its main thread (the kernel looks at the setting of a child's main thread):
 

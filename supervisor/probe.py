@@ -32,9 +32,9 @@ import os
 import sys
 from typing import Any
 
-from . import events, protocol
-from .client import RosWorkerClient
-from .errors import IpcError
+from ipc import events, protocol
+from ipc.client import RosWorkerClient
+from ipc.errors import IpcError
 
 EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_UNAVAILABLE = 0, 1, 2, 3
 NO_ANSWER = ("unavailable", "deadline-exceeded")
@@ -78,7 +78,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def default_endpoint(environ=os.environ) -> str:
-    from ipc.settings import default_runtime_dir
+    from common.settings import default_runtime_dir
 
     return protocol.endpoint(environ.get("SOVD_RUNTIME_DIR") or default_runtime_dir(environ))
 
@@ -185,7 +185,7 @@ def _watch(args: argparse.Namespace, client: RosWorkerClient, endpoint: str) -> 
 
     import zmq
 
-    from .topics import InvalidTopic, normalize_topic
+    from ipc.topics import InvalidTopic, normalize_topic
 
     try:
         topic = normalize_topic(args.topic)

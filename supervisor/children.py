@@ -4,7 +4,7 @@ A :class:`Child` runs in its own process group (Ctrl-C in a terminal reaches
 only the supervisor, which stops the children in order) with a parent-death
 signal, so a supervisor killed outright does not leave it behind.  Nothing
 runs between fork and exec: the child arms that signal itself, from its
-environment (``ipc/pdeathsig.py``).
+environment (``common/pdeathsig.py``).
 """
 
 from __future__ import annotations
@@ -17,13 +17,13 @@ import socket
 import subprocess
 import sys
 
-from ipc import pdeathsig
+from common import pdeathsig
 
 
 class Child:
     """One child process in its own process group, killed if the supervisor dies.
 
-    ``death_signal`` is what the child arms against the supervisor (``ipc/pdeathsig.py``);
+    ``death_signal`` is what the child arms against the supervisor (``common/pdeathsig.py``);
     the child's program must call ``pdeathsig.arm()`` first thing.
     """
 

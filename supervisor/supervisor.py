@@ -5,7 +5,7 @@ Lifecycle (``state``): ``starting`` → ``running`` → ``stopping`` → ``stopp
 starting
     take ``<runtime_dir>/supervisor.lock`` (one gateway per runtime dir), check
     that the bind address is free, prepare the HTTP side's files
-    (``app/runfiles.py``: an empty metrics directory for gunicorn's
+    (``common/runfiles.py``: an empty metrics directory for gunicorn's
     ``PROMETHEUS_MULTIPROC_DIR``, no stale rate-limit buckets), start the ROS worker (``sovd-rosworker``),
     wait until it answers ``ping`` (``WORKER_BOOT_TIMEOUT``), start gunicorn,
     wait until it answers HTTP on the bind address (``HTTP_BOOT_TIMEOUT``),
@@ -34,7 +34,7 @@ Signal handlers only record the signal; ``signal.set_wakeup_fd`` wakes the
 main loop, which acts.  Each child runs in its own process group (Ctrl-C in a
 terminal reaches only the supervisor, which stops them in order) with a
 parent-death signal, so a supervisor killed outright does not leave them
-behind; each child arms it itself after exec (``ipc/pdeathsig.py``), as no
+behind; each child arms it itself after exec (``common/pdeathsig.py``), as no
 code may run between fork and exec in a process with threads.
 
 Before fork / after fork: ``Supervisor.__init__`` touches nothing
@@ -53,12 +53,12 @@ import signal
 import subprocess
 import time
 
+from common import runfiles
+from common.settings import RESTART_ENV, Config
 from ipc import protocol
 from ipc.client import RosWorkerClient
 from ipc.errors import IpcError
-from ipc.settings import RESTART_ENV, Config
 
-from . import runfiles
 from .children import Child, bind_problem, gunicorn_argv, http_answers, rosworker_argv
 from .sdnotify import Notifier, child_env
 

@@ -3,7 +3,7 @@
     sovd-gateway [--bind HOST:PORT] [--runtime-dir DIR] [--workers N] [--allow-publish]
                  [--sample-timeout S] [--config FILE] [--log-level L] [--<any setting> VALUE]
 
-Every setting of ``ipc.settings`` is a flag (and a ``SOVD_*`` variable, and a key
+Every setting of ``common.settings`` is a flag (and a ``SOVD_*`` variable, and a key
 of the TOML config file); flags win.  Exit codes: 0 stopped on request,
 1 failed at run time (e.g. the ROS worker kept dying), 2 bad settings or
 usage, 3 cannot boot (another gateway on the runtime dir, the ROS worker or
@@ -17,7 +17,7 @@ import logging
 import sys
 from importlib import metadata
 
-from ipc import settings as config
+from common import settings as config
 
 EXIT_USAGE = 2
 
