@@ -9,9 +9,9 @@ import sys
 
 from tests.support.procs import REPO
 
-# Outside the gateway proper: the demo robot, and the ROS nodes of the tests and of the
-# benchmark (tests/support/: publishers, the DDS floor, the subscribe-per-request baseline).
-EXEMPT = ("rosworker", "tests", "demo")
+# Outside the gateway proper: the demo robot, the ROS nodes of the tests (tests/support/) and of
+# the benchmark (bench/: publishers, the DDS floor, the subscribe-per-request baseline).
+EXEMPT = ("rosworker", "tests", "demo", "bench")
 CREATES = re.compile(r"\bcreate_(subscription|publisher|callback_group|generic_subscription)\s*\(")
 IMPORTS_RCLPY = re.compile(r"^\s*(import|from)\s+rclpy\b", re.MULTILINE)
 
@@ -89,6 +89,31 @@ def test_each_package_imports_only_the_packages_below_it():
             if wrong:
                 offenders.append(f"{path.relative_to(REPO)} imports {sorted(wrong)}")
     assert not offenders, "imports against the layout:\n" + "\n".join(offenders)
+
+
+# The bench runs from tests/ (tests/system/test_bench_smoke.py), not the other way round: a test
+# may move without breaking ``make bench``.  Its one link to tests/ is the process harness both
+# start the gateway with (a private ROS domain, processes with deadlines, the gateway as an
+# operator starts it); its ROS programs and load clients are its own (bench/).
+BENCH_MAY_IMPORT_FROM_TESTS = {"tests.support.procs", "tests.support.gateway"}
+
+
+def test_the_bench_imports_nothing_from_tests_but_the_process_harness():
+    offenders = []
+    for path in python_files("bench"):
+        tree = ast.parse(path.read_text(), str(path))
+        for node in ast.walk(tree):
+            names = []
+            if isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names = [node.module] if node.module != "tests.support" else \
+                    [f"tests.support.{alias.name}" for alias in node.names]
+            elif isinstance(node, ast.Constant) and isinstance(node.value, str):
+                names = re.findall(r"^tests\.[\w.]+$", node.value)  # "-m", "tests.support.x"
+            offenders += [f"{path.relative_to(REPO)}: {n}" for n in names
+                          if (n == "tests" or n.startswith("tests.")) and n not in BENCH_MAY_IMPORT_FROM_TESTS]
+    assert not offenders, "bench/ uses tests/:\n" + "\n".join(offenders)
 
 
 def test_the_import_gate_reads_function_level_imports(tmp_path):

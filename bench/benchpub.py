@@ -1,6 +1,6 @@
 """Publishers for the bench: many topics in one node, one timer per group.
 
-Run as ``python -m tests.support.benchpub '<json spec>'``::
+Run as ``python -m bench.benchpub '<json spec>'``::
 
     {"node": "bench_idle",
      "groups": [{"prefix": "/bench/idle/t", "count": 50, "rate": 100, "kind": "small"},
@@ -22,7 +22,7 @@ import array
 import json
 import sys
 
-from tests.support import rosmain
+from bench import rosmain
 
 IMAGE_WIDTH, IMAGE_HEIGHT = 640, 480
 

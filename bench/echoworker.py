@@ -1,6 +1,6 @@
 """The bench's pure-hop reference: a ZeroMQ ROUTER that answers every request at once.
 
-    python -m tests.support.echoworker ENDPOINT
+    python -m bench.echoworker ENDPOINT
 
 It binds ``ENDPOINT`` (``app/routes/debug.py``: ``ipc://<runtime_dir>/bench-echo.sock``)
 and answers each request of ``ipc/PROTOCOL.md``'s envelope with

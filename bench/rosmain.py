@@ -1,4 +1,4 @@
-"""What every ROS program of the tests and the bench (``tests/support/*.py`` run with ``-m``) shares.
+"""What every ROS program of the tests and the bench (``bench/*.py``, ``tests/support/rospub.py``, run with ``-m``) shares.
 
 :func:`start` records SIGTERM/SIGINT in an event (rclpy's own handlers stay
 off, so a stop is a clean exit, not an exception out of the executor), inits

@@ -1,6 +1,6 @@
 """Many SSE streams read by one process, for the bench and the reliability suite.
 
-Run as ``python -m tests.support.sseload '<json spec>'``::
+Run as ``python -m bench.sseload '<json spec>'``::
 
     {"port": 8080, "paths": ["/api/v1/apps/x/cyclic-subscriptions/sub_.../events", ...],
      "period": 0.2, "open_for": 30, "measure_from": 5, "connect_rate": 400,

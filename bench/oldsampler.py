@@ -1,6 +1,6 @@
 """The old design, for comparison: subscribe per request.
 
-Run as ``python -m tests.support.oldsampler TOPIC COUNT [TIMEOUT_S]`` (by ``make bench``).  Each of
+Run as ``python -m bench.oldsampler TOPIC COUNT [TIMEOUT_S]`` (by ``make bench``).  Each of
 COUNT samples creates a subscription (QoS matched to the publishers with the
 pool's own rules), spins until its first message arrives, destroys it, and
 records the time from "create" to "message in hand".  Requests start at a
@@ -20,7 +20,7 @@ import random
 import sys
 import time
 
-from tests.support import rosmain
+from bench import rosmain
 
 
 def main() -> int:

@@ -1,6 +1,6 @@
 """The DDS floor of the idle-cost case: subscriptions that are held but never spun.
 
-Run as ``python -m tests.support.ddsfloor '<json list of topics>'`` (by ``make bench``).  Waits until
+Run as ``python -m bench.ddsfloor '<json list of topics>'`` (by ``make bench``).  Waits until
 every topic has a publisher, subscribes to each with the pool's QoS rules
 (keep_last 1, matched reliability/durability), prints ``READY`` and then does
 nothing but sleep until SIGTERM.  Whatever CPU this process uses is the cost
@@ -14,7 +14,7 @@ import json
 import sys
 import time
 
-from tests.support import rosmain
+from bench import rosmain
 
 
 def main() -> int:
