@@ -139,3 +139,16 @@ def test_rosworker_supervisor_ipc_and_common_import_nothing_from_app():
     out = subprocess.run([sys.executable, "-c", CHECK], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "", f"modules of app/ imported outside the HTTP workers: {out.stdout.strip()}"
+
+
+# Tests mirror the code: tests/<package>/ for each package, tests/system/ for the gateway as it is
+# deployed, tests/reliability/ for load and faults; only this file stays at the top.
+TEST_FOLDERS = {"app", "supervisor", "rosworker", "ipc", "common", "system", "reliability"}
+
+
+def test_every_test_module_lives_in_the_folder_of_what_it_tests():
+    misplaced = [str(p.relative_to(REPO)) for p in (REPO / "tests").rglob("test_*.py")
+                 if "__pycache__" not in p.parts and p != REPO / "tests" / "test_layout.py"
+                 and p.relative_to(REPO / "tests").parts[0] not in TEST_FOLDERS]
+    assert not misplaced, f"test modules outside tests/{{{','.join(sorted(TEST_FOLDERS))}}}/: {misplaced}"
+    assert TEST_FOLDERS - {"system", "reliability"} <= {p.name for p in REPO.iterdir() if (p / "__init__.py").exists()}

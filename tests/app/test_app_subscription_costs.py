@@ -4,7 +4,7 @@ One client address holds at most ``max_subscriptions_per_client``; the
 subscriptions of topics that do not exist (or have no publisher) cost the ROS
 worker nothing per tick, and such a topic streams data as soon as a publisher
 appears.  The restart state belongs to a ROS worker that died, not to a new
-gateway.  Streaming itself is in tests/test_app_streams.py.
+gateway.  Streaming itself is in tests/app/test_app_streams.py.
 """
 
 from __future__ import annotations
@@ -113,7 +113,7 @@ def test_a_made_up_topic_streams_data_once_a_publisher_appears(nodes):
 
 
 def test_a_new_gateway_on_the_same_runtime_dir_starts_without_the_last_runs_subscriptions():
-    """The restart state is for a ROS worker that died (tests/test_app_streams.py: a SIGKILLed one keeps
+    """The restart state is for a ROS worker that died (tests/app/test_app_streams.py: a SIGKILLed one keeps
     them), not for a gateway stopped and started again."""
     runtime_dir = tempfile.mkdtemp(prefix="sovd-gw-")
     try:

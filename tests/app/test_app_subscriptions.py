@@ -2,7 +2,7 @@
 
 The registry behind these routes is the ROS worker's (the fake worker stands
 in here); streaming, expiry and the rest through a real gateway are in
-tests/test_app_streams.py.
+tests/app/test_app_streams.py.
 """
 
 from __future__ import annotations

@@ -178,7 +178,7 @@ def test_every_route_answers_per_the_document(doc):
             key = check(doc, method, path, r)
             seen.setdefault(key, set()).add(r.status_code)
 
-        # Cyclic subscriptions (their event streams' 200 is text/event-stream: tests/test_app_streams.py).
+        # Cyclic subscriptions (their event streams' 200 is text/event-stream: tests/app/test_app_streams.py).
         for collection in ("apps", "components", "functions"):
             base = f"/api/v1/{collection}/{ENTITY[collection]}/cyclic-subscriptions"
             resource = f"/api/v1/{collection}/{ENTITY[collection]}/data/powertrain/engine/temperature"

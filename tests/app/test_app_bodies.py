@@ -2,7 +2,7 @@
 
 Through a real gateway and raw sockets (malformed chunked bodies, the limit,
 415): tests/reliability/test_hostile_http.py; from a page of another origin in
-chromium: tests/test_cross_site.py.
+chromium: tests/system/test_cross_site.py.
 """
 
 from __future__ import annotations

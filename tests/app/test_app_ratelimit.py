@@ -2,7 +2,7 @@
 
 The buckets are checked with their own clock here; that two gunicorn workers
 enforce one limit, and that a limited client does not slow another, is
-checked through a real gateway in ``tests/test_fleet_e2e.py``.
+checked through a real gateway in ``tests/system/test_fleet_e2e.py``.
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ import pytest
 from app import openapi, ratelimit
 from app.clientaddr import Trusted, client_address
 from common import settings
+from tests.app.test_app_openapi import check
 from tests.support.fakeworker import ROBOT, FakeWorker, make_app
-from tests.test_app_openapi import check
 
 
 def buckets(tmp_path, client="", overall="", slots=ratelimit.SLOTS) -> ratelimit.SharedBuckets:

@@ -1,6 +1,6 @@
 """The dashboard's routes (app/routes/ui.py) and its static files (app/ui/), without a browser.
 
-What a browser makes of the page is tests/test_ui.py; here: the redirect, the
+What a browser makes of the page is tests/system/test_ui.py; here: the redirect, the
 security headers, the JSON 404s, that the API's routes are untouched, that the
 page has nothing inline that the Content-Security-Policy would have to allow,
 and that a package build ships every file of app/ui/.

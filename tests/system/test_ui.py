@@ -431,7 +431,7 @@ server {{
 
 
 def test_the_dashboard_works_under_a_path_prefix_behind_nginx(gw, page, tmp_path_factory):
-    from tests.test_nginx import Nginx
+    from tests.system.test_nginx import Nginx
 
     tab, watch = page
     none_left(gw, "temp_sensor")

@@ -203,7 +203,7 @@ def test_topic_named_docs_is_still_readable(client, fw):
     assert "paths" in client.get("/api/v1/apps/temp_sensor/data/docs").get_json()
 
 
-# "/" is the dashboard now (it redirects to ui/: tests/test_app_ui.py); any other path outside it stays a 404.
+# "/" is the dashboard now (it redirects to ui/: tests/app/test_app_ui.py); any other path outside it stays a 404.
 @pytest.mark.parametrize("path", ["/api/v1/nope", "/api/v2/", "/robots", "/api/v1/apps/x/y/z",
                                   "/api/v1/robots/x"])
 def test_unmatched_route_is_json_404(client, path):

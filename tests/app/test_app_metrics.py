@@ -2,7 +2,7 @@
 
 The HTTP metrics here are this process's own (no ``PROMETHEUS_MULTIPROC_DIR``:
 the sums over gunicorn's workers are checked through a real gateway in
-``tests/test_fleet_e2e.py``), so the checks compare values before and after.
+``tests/system/test_fleet_e2e.py``), so the checks compare values before and after.
 """
 
 from __future__ import annotations

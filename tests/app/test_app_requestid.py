@@ -2,8 +2,8 @@
 
 That the ROS worker's log lines of a command carry the id, and that one grep
 finds both sides of a slow request, is checked through a real gateway in
-``tests/test_fleet_e2e.py``; the worker's refusal of a malformed id in
-``tests/test_rosworker_executor.py`` (hostile IPC frames).
+``tests/system/test_fleet_e2e.py``; the worker's refusal of a malformed id in
+``tests/rosworker/test_rosworker_executor.py`` (hostile IPC frames).
 """
 
 from __future__ import annotations

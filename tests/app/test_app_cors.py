@@ -1,6 +1,6 @@
 """CORS (flask-cors): an allowed origin, a disallowed one, a preflight, ``*``, and nothing when off.
 
-The event streams' headers are checked through a real gateway in ``tests/test_fleet_e2e.py``.
+The event streams' headers are checked through a real gateway in ``tests/system/test_fleet_e2e.py``.
 """
 
 from __future__ import annotations

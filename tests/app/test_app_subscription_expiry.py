@@ -6,7 +6,7 @@ keeps a subscription past its duration nor ends it early (issue 18, defect 7).
 The step is made in every process of the gateway by
 ``tests/support/wallclock.py``.  A ROS worker killed and restarted keeps each
 subscription's expiry (the restart state holds it as wall-clock time).
-Expiry of an open stream at an unchanged clock is in tests/test_app_streams.py.
+Expiry of an open stream at an unchanged clock is in tests/app/test_app_streams.py.
 """
 
 from __future__ import annotations
