@@ -10,6 +10,7 @@ import time
 
 import pytest
 
+from app.errors import ApiError
 from ipc import protocol
 from ipc.client import POOL_SIZE, RosWorkerClient
 from ipc.errors import IpcError
@@ -36,7 +37,7 @@ def test_a_request_lost_with_a_killed_worker_is_unavailable_at_once_not_a_timeou
         worker.signal(9)
         t.join(25)
         exc, waited = outcome[0]
-        assert exc.code == "unavailable" and exc.status == 503
+        assert exc.code == "unavailable" and ApiError.from_ipc(exc).status == 503
         assert waited < 10  # not the 20 s deadline
     finally:
         client.close()
@@ -59,7 +60,7 @@ def test_no_worker_is_unavailable_and_a_silent_worker_is_a_deadline(tmp_path):
         time.sleep(0.3)
         with pytest.raises(IpcError) as info:
             client.call("pool", timeout=0.5)
-        assert info.value.code == "deadline-exceeded" and info.value.status == 504
+        assert info.value.code == "deadline-exceeded" and ApiError.from_ipc(info.value).status == 504
         # The late reply to the timed-out call is dropped: the next call gets its own answer.
         time.sleep(3)
         assert client.call("pool", timeout=5) == {"topics": []}

@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 from rclpy.validate_full_topic_name import validate_full_topic_name
 
+from app.errors import ApiError
 from ipc.errors import IpcError
 from rosworker.commands import middleware_names
 from tests.support.rosworker import RosWorker
@@ -31,7 +32,7 @@ def test_names_rmw_refuses_are_invalid_topic_and_no_traceback(worker, cmd, args)
         with pytest.raises(IpcError) as info:
             worker.call(cmd, {"topic": topic, **args})
         assert info.value.code == "invalid-topic", info.value
-        assert info.value.status == 400 and "247" in info.value.message
+        assert ApiError.from_ipc(info.value).status == 400 and "247" in info.value.message
     assert worker.call("ping")["pid"] == worker.pid
     logged = "\n".join(worker.output[before:])
     assert "Traceback" not in logged and "ERROR" not in logged, logged
@@ -42,7 +43,7 @@ def test_rclpy_name_exceptions_become_invalid_topic():
     for name in ("/" + "x" * 300, "/a//b", "/1a"):
         with pytest.raises(IpcError) as info, middleware_names(name):
             validate_full_topic_name(name)
-        assert info.value.code == "invalid-topic" and info.value.status == 400
+        assert info.value.code == "invalid-topic" and ApiError.from_ipc(info.value).status == 400
         assert info.value.params == {"topic": name[:300]}
         assert info.value.message.startswith("The ROS middleware refuses the topic name")
         assert "\n" not in info.value.message

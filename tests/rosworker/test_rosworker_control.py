@@ -20,6 +20,7 @@ import threading
 import pytest
 import zmq
 
+from app.errors import ApiError
 from ipc.client import RosWorkerClient
 from ipc.errors import IpcError
 from ipc.server import ControlServer
@@ -97,7 +98,7 @@ def test_a_failed_answer_is_answered_internal_and_the_control_thread_answers_on(
     with pytest.raises(IpcError) as info:
         client.call("stats", timeout=2)
     assert info.value.code == "internal", info.value
-    assert info.value.status == 500
+    assert ApiError.from_ipc(info.value).status == 500
     assert server.errors == 1
     # the same thread answers the next requests (before: it had died, so they timed out)
     assert client.call("ping", timeout=2)["version"] == "test"

@@ -10,6 +10,7 @@ import msgpack
 import pytest
 import zmq
 
+from app.errors import ApiError
 from ipc import protocol
 from ipc.errors import IpcError
 from tests.support.gateway import Gateway
@@ -45,9 +46,9 @@ def test_cold_wait_cap_sheds_excess_cold_callers_while_warm_topics_answer(nodes)
             worker.sample(cold[2], timeout_ms=4000)
         shed_after = time.monotonic() - started
         assert info.value.code == "cold-wait-cap-exceeded"
-        assert info.value.status == 503
+        assert ApiError.from_ipc(info.value).status == 503
         assert info.value.params == {"topic": cold[2], "cold_wait_cap": 2}
-        assert info.value.retry_after
+        assert ApiError.from_ipc(info.value).retry_after
         assert shed_after < 2.0  # at once, not after the 4 s sample timeout
         assert worker.sample(warm)["status"] == "data"     # warm reads are unaffected
         assert worker.stats()["executor"]["worker_alive"]  # and so are stats
@@ -99,7 +100,7 @@ def test_full_queue_answers_backpressure_at_once_and_counts_drops():
         blocker.join(10)
         errors = [o for o in outcomes if isinstance(o, IpcError)]
         assert len(outcomes) == 6
-        assert errors and all(e.code == "backpressure" and e.status == 503 for e in errors)
+        assert errors and all(e.code == "backpressure" and ApiError.from_ipc(e).status == 503 for e in errors)
         assert len(outcomes) - len(errors) == 2  # what fitted in the queue was served
         executor = worker.stats()["executor"]
         assert executor["queue_dropped"] == len(errors)
