@@ -27,7 +27,7 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -n $(TEST_JOBS) --dist loadfile $(PYTEST_ARGS)
 
 lint: $(STAMP)
-	$(BIN)/ruff check app rosworker ipc demo tests bench
+	$(BIN)/ruff check app supervisor rosworker ipc common demo tests bench
 
 bench: $(STAMP)
 	$(BIN)/python -m bench.run
@@ -37,7 +37,7 @@ reliability: $(STAMP)
 
 # The README's picture of the dashboard, taken by its browser test (CI=true: fail, not skip, without chromium).
 screenshot: $(STAMP)
-	CI=true SOVD_UI_SCREENSHOT=docs/dashboard.png $(BIN)/python -m pytest tests/test_ui.py -q -p no:randomly \
+	CI=true SOVD_UI_SCREENSHOT=docs/dashboard.png $(BIN)/python -m pytest tests/system/test_ui.py -q -p no:randomly \
 		-k live_value_changes_on_screen
 
 clean:

@@ -1,1 +1,1 @@
-"""The HTTP side (Flask app, gunicorn config) and the supervisor. Imports no rclpy."""
+"""The HTTP side: the Flask app and gunicorn config of the HTTP workers. Imports no rclpy."""

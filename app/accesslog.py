@@ -23,7 +23,7 @@ import time
 
 from gunicorn.glogging import Logger
 
-from ipc import settings
+from common import settings
 
 SUMMARY_EVERY = 10.0  # seconds between "suppressed" summaries
 

@@ -1,6 +1,6 @@
 """CORS for browser tools served from other origins (flask-cors), off unless ``cors_origins`` is set.
 
-``cors_origins`` (``ipc/settings.py``) is a comma-separated list of exact
+``cors_origins`` (``common/settings.py``) is a comma-separated list of exact
 origins (``https://dashboard.example:8443``, ``http://[fd00::10]:8443``: scheme,
 host and port, compared as a whole without case, never as a prefix or pattern:
 :func:`exact_patterns`), or ``*`` for any origin.  With a
@@ -26,7 +26,7 @@ import re
 
 from flask import Flask
 
-from ipc import settings
+from common import settings
 
 METHODS = ["GET", "PUT", "POST", "DELETE"]
 ALLOW_HEADERS = ["Authorization", "Content-Type"]

@@ -21,6 +21,33 @@ from werkzeug.exceptions import HTTPException
 
 from ipc.errors import IpcError
 
+# What an IPC error code (ipc/errors.py) answers an HTTP client:
+# code -> (HTTP status, SOVD error_code, vendor_code or None, Retry-After seconds or None)
+IPC_ANSWERS: dict[str, tuple[int, str, str | None, int | None]] = {
+    "bad-request": (400, "invalid-request", None, None),
+    "invalid-topic": (400, "invalid-parameter", None, None),
+    "invalid-type": (400, "invalid-parameter", None, None),
+    "type-mismatch": (400, "invalid-parameter", None, None),
+    "type-not-installed": (400, "invalid-request", None, None),
+    "invalid-data": (400, "invalid-request", None, None),
+    "unknown-command": (400, "invalid-request", None, None),
+    "unsupported-version": (400, "invalid-request", None, None),
+    "not-enabled": (403, "invalid-request", None, None),
+    "no-such-topic": (404, "resource-not-found", None, None),
+    "no-such-subscription": (404, "resource-not-found", None, None),
+    "subscribe-failed": (500, "vendor-error", "x-medkit-subscribe-failed", None),
+    "publish-failed": (500, "vendor-error", "x-medkit-publish-failed", None),
+    "internal": (500, "internal-error", None, None),
+    "message-undecodable": (502, "vendor-error", "x-medkit-message-undecodable", None),
+    "cold-wait-cap-exceeded": (503, "vendor-error", "x-medkit-cold-wait-cap-exceeded", 1),
+    "backpressure": (503, "vendor-error", "x-medkit-ros-worker-backpressure", 1),
+    "pool-busy": (503, "vendor-error", "x-medkit-pool-busy", 1),
+    "shutdown": (503, "vendor-error", "x-medkit-gateway-shutdown", 2),
+    "unavailable": (503, "vendor-error", "x-medkit-ros-worker-unavailable", 2),
+    "subscriptions-full": (503, "service-unavailable", None, 5),
+    "deadline-exceeded": (504, "not-responding", None, None),
+}
+
 # HTTP status -> SOVD error_code for errors that Werkzeug raises.
 HTTP_CODES = {
     400: "invalid-request",
@@ -70,10 +97,11 @@ class ApiError(Exception):
     @classmethod
     def from_ipc(cls, exc: IpcError, parameters: dict[str, Any] | None = None,
                  message: str | None = None) -> ApiError:
-        """Map a ROS-worker error through the one table of ``ipc/errors.py``."""
+        """Map a ROS-worker error through the one table, :data:`IPC_ANSWERS`."""
         params = {**exc.params, **(parameters or {})}
-        return cls(exc.status, exc.error_code, message or exc.message, params,
-                   vendor_code=exc.vendor_code, retry_after=exc.retry_after)
+        status, error_code, vendor_code, retry_after = IPC_ANSWERS[exc.code]
+        return cls(status, error_code, message or exc.message, params,
+                   vendor_code=vendor_code, retry_after=retry_after)
 
     def __repr__(self) -> str:
         return f"ApiError({self.status}, {self.error_code!r}, {self.message!r})"
@@ -110,7 +138,7 @@ def _handle_api_error(err: ApiError) -> Response:
 
 
 def _handle_ipc_error(exc: IpcError) -> Response:
-    if exc.status >= 500 and exc.code == "internal":
+    if exc.code == "internal":
         current_app.logger.error("ROS worker error on %s %s: %s", request.method, request.path, exc.message)
     return error_response(ApiError.from_ipc(exc))
 

@@ -33,7 +33,7 @@ from __future__ import annotations
 import math
 import os
 
-from ipc import settings as _config
+from common import settings as _config
 
 _cfg = _config.load(None)
 
@@ -75,5 +75,5 @@ def child_exit(server, worker):
         multiprocess.mark_process_dead(worker.pid)
 
 
-# The master arms its own parent-death signal (SIGTERM) against the supervisor: ipc/pdeathsig.py.
-from ipc.pdeathsig import gunicorn_on_starting as on_starting  # noqa: E402,F401 - a gunicorn hook
+# The master arms its own parent-death signal (SIGTERM) against the supervisor: common/pdeathsig.py.
+from common.pdeathsig import gunicorn_on_starting as on_starting  # noqa: E402,F401 - a gunicorn hook

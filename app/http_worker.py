@@ -52,7 +52,7 @@ from gevent.socket import wait_read
 from gunicorn.workers.ggevent import GeventWorker
 from werkzeug.exceptions import RequestTimeout
 
-from ipc import settings
+from common import settings
 
 HEARTBEAT_S = 1.0        # how often the worker tells the master it is alive (gunicorn's own rate)
 DRAIN_CHUNK = 64 * 1024  # reads of a body the application left unread

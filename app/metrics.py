@@ -24,7 +24,7 @@ Three sources, all in the ``sovd_`` namespace:
   does not answer.
 - **The supervisor** (:class:`SupervisorCollector`): ROS-worker restarts and
   the time since the running ROS worker started, from the small state file
-  the supervisor rewrites at each start (``app/runfiles.py``; the supervisor
+  the supervisor rewrites at each start (``common/runfiles.py``; the supervisor
   never loads gevent, Flask or prometheus_client).
 
 Who calls what: the request hooks run on each request's greenlet; the
@@ -41,7 +41,9 @@ from typing import Any
 
 from flask import Blueprint, Flask, Response, current_app, request
 
-from . import rosclient, runfiles
+from common import runfiles
+
+from . import rosclient
 
 # Latency buckets (seconds): 0.25 ms (a cached answer on a quiet machine) to 5 s (a cold read's
 # sample_timeout plus IPC), about three per decade.

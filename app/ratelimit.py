@@ -1,6 +1,6 @@
 """Rate limiting: token buckets per client address and over all clients, shared by every HTTP worker.
 
-Settings (``ipc/settings.py``): ``rate_limit`` (per client) and
+Settings (``common/settings.py``): ``rate_limit`` (per client) and
 ``rate_limit_global`` (all clients together), each ``RATE/BURST``: a bucket
 holds at most BURST tokens, gains RATE per second, and each request takes
 one.  Both are off by default.  A request is let through only when both its
@@ -57,9 +57,9 @@ from dataclasses import dataclass
 
 from flask import Flask, Response, current_app, request
 
-from ipc import settings
+from common import runfiles, settings
 
-from . import metrics, runfiles
+from . import metrics
 from .errors import ApiError, error_response
 
 log = logging.getLogger("sovd.http.ratelimit")

@@ -3,7 +3,7 @@
 Nothing happens at import time.  ``create_app`` runs in each HTTP worker
 after gunicorn forked it; the ROS-worker client it sets up opens its ZeroMQ
 context only on first use (``app/rosclient.py``).  Settings come from
-``ipc.settings.load()``: the supervisor hands them to gunicorn's workers as
+``common.settings.load()``: the supervisor hands them to gunicorn's workers as
 ``SOVD_*`` environment variables.
 
 ``test_config`` overrides settings by their name (``runtime_dir``,
@@ -17,7 +17,7 @@ from typing import Any
 
 from flask import Flask
 
-from ipc import settings
+from common import settings
 
 from . import clientaddr, cors, errors, metrics, ratelimit, requestid, rosclient, streams
 

@@ -4,18 +4,23 @@
 and a real ``sovd-gateway`` in a private ROS domain, measures every case of
 the table, prints it and writes it as JSON under ``bench/results/``.
 
-Its ROS programs live beside the tests' own, in ``tests/support/`` (only
-``rosworker/`` of the gateway may create ROS entities), each run as its own process:
+Its ROS programs live here, in ``bench/`` (exempt, like ``tests/`` and ``demo/``, from the rule
+that only ``rosworker/`` creates ROS entities: tests/test_layout.py), each run as its own process:
 
-- :mod:`tests.support.benchpub` — publishers: many topics per node, one timer per rate;
-- :mod:`tests.support.oldsampler` — the old subscribe-per-request design, in rclpy;
-- :mod:`tests.support.ddsfloor` — a bare rclpy process holding subscriptions without spinning.
+- :mod:`bench.benchpub` — publishers: many topics per node, one timer per rate;
+- :mod:`bench.oldsampler` — the old subscribe-per-request design, in rclpy;
+- :mod:`bench.ddsfloor` — a bare rclpy process holding subscriptions without spinning.
 
-and, beside the gateway, :mod:`tests.support.echoworker`: the process behind the
-echo route (``--debug-commands``), the pure IPC hop the warm sample is compared with.
+and, beside the gateway, :mod:`bench.echoworker`: the process behind the
+echo route (``--debug-commands``), the pure IPC hop the warm sample is compared with;
+:mod:`bench.rosmain` is what these ROS programs (and the tests' ``tests/support/rospub.py``)
+share; :mod:`bench.sseload` reads event streams (also for ``tests/reliability/test_streams.py``).
 
 Helpers of its own:
 
 - :mod:`bench.load` — ``wrk`` (or the Python fallback) and the 1-connection latency client;
-- :mod:`bench.procs` — helper processes and CPU figures (the rest comes from ``tests/support``).
+- :mod:`bench.procs` — helper processes and CPU figures.
+
+From ``tests/`` it imports only the process harness it shares with the tests,
+``tests.support.procs`` and ``tests.support.gateway`` (tests/test_layout.py pins that).
 """

@@ -5,8 +5,8 @@ gateway (:class:`tests.support.gateway.Gateway`, with its output to a log file)
 and process handling (:class:`tests.support.procs.Proc`) are shared with the
 test suite.  Here:
 
-- :func:`ros_helper` starts ``python -m tests.support.<module>`` and waits for ``READY``;
-  :func:`robot` is that for the publishers of ``tests/support/benchpub.py``;
+- :func:`ros_helper` starts ``python -m bench.<module>`` and waits for ``READY``;
+  :func:`robot` is that for the publishers of ``bench/benchpub.py``;
 - :func:`cpu_seconds` and :func:`measure_cpu`: what processes used, from psutil.
 """
 
@@ -22,12 +22,12 @@ from tests.support.procs import Proc
 
 
 def ros_helper(module: str, *args: str, name: str | None = None, timeout: float = 60.0) -> Proc:
-    """``python -m tests.support.<module> ARGS`` in its own process; returns once it printed READY.
+    """``python -m bench.<module> ARGS`` in its own process; returns once it printed READY.
 
-    The bench's ROS nodes live beside the tests' own (only ``rosworker/`` of the
-    gateway may create ROS entities; tests/test_layout.py).
+    The bench's ROS nodes live in ``bench/`` (exempt from "only ``rosworker/`` of the
+    gateway creates ROS entities"; tests/test_layout.py).
     """
-    proc = Proc([sys.executable, "-m", f"tests.support.{module}", *args], name=name or module)
+    proc = Proc([sys.executable, "-m", f"bench.{module}", *args], name=name or module)
     proc.wait_line(lambda line: line == "READY", timeout)
     return proc
 

@@ -6,8 +6,8 @@ Starts, in a private ROS domain with localhost-only discovery: the demo
 robot (``demo/robot.py``), a real ``sovd-gateway`` (console script, default
 settings, log level ``warning`` so that gunicorn writes no access log line
 per request, ``--debug-commands`` for the echo route), the echo process
-(``tests/support/echoworker.py``), and per case its own publishers
-(``tests/support/benchpub.py``).  Then
+(``bench/echoworker.py``), and per case its own publishers
+(``bench/benchpub.py``).  Then
 it measures every case below, prints the table and writes it as JSON to
 ``bench/results/bench-<UTC timestamp>.json``.  Every target is a ratio or a
 difference between figures of the same run.
@@ -16,12 +16,12 @@ difference between figures of the same run.
 |---|---|
 | floor | ``GET /api/v1/version-info`` (touches no ROS worker), 8 and 1 connections |
 | warm sample | ``GET .../data/powertrain/engine/temperature`` (10 Hz, pooled), 8 and 1 connections |
-| echo route | ``GET /api/v1/x-sovd-debug/echo``: one round trip through the same HTTP stack and IPC client to a process that answers at once (``tests/support/echoworker.py``), 8 and 1 connections: the pure hop |
+| echo route | ``GET /api/v1/x-sovd-debug/echo``: one round trip through the same HTTP stack and IPC client to a process that answers at once (``bench/echoworker.py``), 8 and 1 connections: the pure hop |
 | IPC hop | ``GET /api/v1/health`` (one ``stats`` round trip, no ROS work), 1 connection: report only |
-| old design | ``tests/support/oldsampler.py``: create a subscription, wait for a message, destroy it |
+| old design | ``bench/oldsampler.py``: create a subscription, wait for a message, destroy it |
 | cold sample | the first HTTP read of a fresh 10 Hz topic, one topic per read |
 | image | 640×480 rgb8 at 10 Hz, 1 connection, integer arrays, then ``?bytes=base64`` |
-| idle cost | ROS worker CPU, 50 pooled topics at 100 Hz, no readers, next to ``tests/support/ddsfloor.py`` |
+| idle cost | ROS worker CPU, 50 pooled topics at 100 Hz, no readers, next to ``bench/ddsfloor.py`` |
 | memory | ROS worker RSS before and with 256 pooled topics |
 | streams | 1,000 SSE streams on 10 topics at ``normal`` for 30 s (``bench/streams.py``), then 10 on the same topics |
 | stream image | a 640×480 rgb8 image at 5 Hz streamed at ``fast`` (``?bytes=base64``): publish stamp to client |
@@ -133,7 +133,7 @@ class Bench:
         self.procs.append(ros_helper_demo())
         self.gw = Gateway("--log-level", "warning", "--debug-commands", *self.args.gateway_args.split(),
                           log_path=os.path.join(self.work_dir, "gateway.log"))
-        echo = Proc([sys.executable, "-m", "tests.support.echoworker", echo_endpoint(self.gw.runtime_dir)],
+        echo = Proc([sys.executable, "-m", "bench.echoworker", echo_endpoint(self.gw.runtime_dir)],
                     name="echo worker")
         self.procs.append(echo)
         echo.wait_line(lambda line: line == "READY", 30)
@@ -378,7 +378,7 @@ class Bench:
         warm = next(r for r in self.rows if r["key"] == "warm1")["values"]["p50_ms"]
         speedup = p50 / warm if warm else 0.0
         self.add("old", "old design (subscribe per request)",
-                 f"tests/support/oldsampler.py, rclpy: create sub, wait 1st msg, destroy; {n}× on {WARM_TOPIC}",
+                 f"bench/oldsampler.py, rclpy: create sub, wait 1st msg, destroy; {n}× on {WARM_TOPIC}",
                  {"p50_ms": round(p50, 3), "min_ms": min(samples, default=None),
                   "max_ms": max(samples, default=None), "timeouts": raw.get("timeouts"), "samples_ms": samples,
                   "speedup_of_warm_1conn": round(speedup, 1)},
@@ -545,7 +545,7 @@ class Bench:
                       ratio=round(ratio, 3))
         self.add("idle", "idle cost: ROS worker CPU, 50 pooled topics × 100 Hz, no readers"
                  if n == 50 and rate == 100 else f"idle cost: {n} pooled topics × {rate} Hz",
-                 f"psutil cpu_times over {p['idle_s']:g} s, same window as tests/support/ddsfloor.py "
+                 f"psutil cpu_times over {p['idle_s']:g} s, same window as bench/ddsfloor.py "
                  f"({n} subscriptions held, never spun)",
                  values, f"worker {values['rosworker']:.1f}% of a core vs DDS floor "
                  f"{values['ddsfloor']:.1f}% = {ratio:.2f} × floor",
@@ -637,7 +637,7 @@ def table(rows: list[dict[str, Any]]) -> str:
 
 
 def settings() -> dict[str, Any]:
-    from ipc import settings as config
+    from common import settings as config
     cfg = config.load(None, environ={})
     info = {"workers": cfg.workers, "worker_connections": cfg.worker_connections,
             "sample_timeout": cfg.sample_timeout,

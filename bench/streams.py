@@ -1,8 +1,8 @@
 """The streaming cases of ``make bench``: many SSE streams, their fan-out cost, an image stream.
 
-``bench/run.py`` runs them against its gateway (``--only streams,stream_image``).  Each case starts its own publishers (``tests/support/benchpub.py``) beside the
+``bench/run.py`` runs them against its gateway (``--only streams,stream_image``).  Each case starts its own publishers (``bench/benchpub.py``) beside the
 gateway it is given, makes cyclic subscriptions through the HTTP API and reads
-the streams with ``tests/support/sseload.py`` in two client processes (one
+the streams with ``bench/sseload.py`` in two client processes (one
 Python process alone could not read 5,000 frames/s and leave a core to the
 gateway).  Every figure is a ratio or a difference within the run.
 
@@ -70,7 +70,7 @@ def read_streams(gw: Gateway, paths: list[str], period: float, open_for: float, 
     for i in range(clients):
         spec = {"port": gw.port, "paths": paths[i::clients], "period": period, "open_for": open_for,
                 "measure_from": measure_from, "connect_rate": 400 // clients, **extra}
-        procs.append(Proc([sys.executable, "-m", "tests.support.sseload", json.dumps(spec)],
+        procs.append(Proc([sys.executable, "-m", "bench.sseload", json.dumps(spec)],
                           name=f"sseload{i}"))
     outs = []
     for p in procs:

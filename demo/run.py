@@ -15,7 +15,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from app.children import Child
+from supervisor.children import Child
 
 BIN = Path(sys.executable).parent
 

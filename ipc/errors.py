@@ -1,40 +1,42 @@
 """Errors that cross the process boundary: one table of codes, sent as data.
 
-An error travels as ``{"code", "message", "status", "params"}``.  The
+An error travels as ``{"code", "message", "params"}``.  The
 receiving side rebuilds an :class:`IpcError` only from the codes in
 :data:`CODES`; anything else becomes ``internal``.  Tracebacks never travel:
-they go to the ROS worker's log.
+they go to the ROS worker's log.  What a code means to an HTTP client (status,
+SOVD ``error_code``, ``vendor_code``, ``Retry-After``) is the HTTP side's
+business: ``app/errors.py``.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-# code -> (HTTP status, SOVD error_code, vendor_code or None, retry-after seconds or None)
-CODES: dict[str, tuple[int, str, str | None, int | None]] = {
-    "bad-request": (400, "invalid-request", None, None),
-    "invalid-topic": (400, "invalid-parameter", None, None),
-    "invalid-type": (400, "invalid-parameter", None, None),
-    "type-mismatch": (400, "invalid-parameter", None, None),
-    "type-not-installed": (400, "invalid-request", None, None),
-    "invalid-data": (400, "invalid-request", None, None),
-    "unknown-command": (400, "invalid-request", None, None),
-    "unsupported-version": (400, "invalid-request", None, None),
-    "not-enabled": (403, "invalid-request", None, None),
-    "no-such-topic": (404, "resource-not-found", None, None),
-    "no-such-subscription": (404, "resource-not-found", None, None),
-    "subscribe-failed": (500, "vendor-error", "x-medkit-subscribe-failed", None),
-    "publish-failed": (500, "vendor-error", "x-medkit-publish-failed", None),
-    "internal": (500, "internal-error", None, None),
-    "message-undecodable": (502, "vendor-error", "x-medkit-message-undecodable", None),
-    "cold-wait-cap-exceeded": (503, "vendor-error", "x-medkit-cold-wait-cap-exceeded", 1),
-    "backpressure": (503, "vendor-error", "x-medkit-ros-worker-backpressure", 1),
-    "pool-busy": (503, "vendor-error", "x-medkit-pool-busy", 1),
-    "shutdown": (503, "vendor-error", "x-medkit-gateway-shutdown", 2),
-    "unavailable": (503, "vendor-error", "x-medkit-ros-worker-unavailable", 2),
-    "subscriptions-full": (503, "service-unavailable", None, 5),
-    "deadline-exceeded": (504, "not-responding", None, None),
-}
+# Every code an error on the wire may carry (the HTTP side's answer to each: app/errors.py).
+CODES: frozenset[str] = frozenset({
+    "bad-request",
+    "invalid-topic",
+    "invalid-type",
+    "type-mismatch",
+    "type-not-installed",
+    "invalid-data",
+    "unknown-command",
+    "unsupported-version",
+    "not-enabled",
+    "no-such-topic",
+    "no-such-subscription",
+    "subscribe-failed",
+    "publish-failed",
+    "internal",
+    "message-undecodable",
+    "cold-wait-cap-exceeded",
+    "backpressure",
+    "pool-busy",
+    "shutdown",
+    "unavailable",
+    "subscriptions-full",
+    "deadline-exceeded",
+})
 
 
 class IpcError(Exception):
@@ -48,24 +50,8 @@ class IpcError(Exception):
         self.message = message
         self.params = dict(params or {})
 
-    @property
-    def status(self) -> int:
-        return CODES[self.code][0]
-
-    @property
-    def error_code(self) -> str:
-        return CODES[self.code][1]
-
-    @property
-    def vendor_code(self) -> str | None:
-        return CODES[self.code][2]
-
-    @property
-    def retry_after(self) -> int | None:
-        return CODES[self.code][3]
-
     def to_wire(self) -> dict[str, Any]:
-        return {"code": self.code, "message": self.message, "status": self.status, "params": self.params}
+        return {"code": self.code, "message": self.message, "params": self.params}
 
     @classmethod
     def from_wire(cls, data: Any) -> IpcError:

@@ -8,7 +8,7 @@ and ``_`` and does not start with a digit; no empty tokens, no trailing
 ``/``; at most ``RMW_TOPIC_MAX_NAME_LENGTH`` = 255 - 8 = 247 characters
 (room for the DDS prefix ``rt/`` and its kin).  A name that breaks them is
 refused here, before it reaches the middleware (whose exception would
-otherwise be a 500).  tests/test_ipc_topics.py checks the two agree.
+otherwise be a 500).  tests/ipc/test_ipc_topics.py checks the two agree.
 """
 
 from __future__ import annotations

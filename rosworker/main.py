@@ -6,12 +6,12 @@ stops taking work, wakes every waiter, drains what is queued, destroys every
 subscription and publisher and exits 0.
 
 Before anything else the worker arms its parent-death signal and exits (1)
-if the supervisor that started it is already gone (``ipc/pdeathsig.py``).
+if the supervisor that started it is already gone (``common/pdeathsig.py``).
 So the module imports only light modules at its top: zmq, rclpy and the
 modules that load them (numpy, orjson; about 0.3 s) are imported inside
 :class:`Worker`, after the death signal is armed and the settings are read,
 and an orphaned or misconfigured worker exits without loading them
-(``tests/test_pdeathsig.py`` checks it).
+(``tests/common/test_pdeathsig.py`` checks it).
 
 Wiring: :meth:`Worker._serve` builds every piece and passes each its
 collaborators and callbacks through its constructor; the executor, which the
@@ -40,8 +40,8 @@ import sys
 import time
 from importlib import metadata
 
-from ipc import pdeathsig
-from ipc import settings as config
+from common import pdeathsig
+from common import settings as config
 from ipc.errors import IpcError
 
 from .graph import Endpoints, GraphMonitor, node_names

@@ -2,15 +2,16 @@
 
 from __future__ import annotations
 
+import ast
 import re
 import subprocess
 import sys
 
 from tests.support.procs import REPO
 
-# Outside the gateway proper: the demo robot, and the ROS nodes of the tests and of the
-# benchmark (tests/support/: publishers, the DDS floor, the subscribe-per-request baseline).
-EXEMPT = ("rosworker", "tests", "demo")
+# Outside the gateway proper: the demo robot, the ROS nodes of the tests (tests/support/) and of
+# the benchmark (bench/: publishers, the DDS floor, the subscribe-per-request baseline).
+EXEMPT = ("rosworker", "tests", "demo", "bench")
 CREATES = re.compile(r"\bcreate_(subscription|publisher|callback_group|generic_subscription)\s*\(")
 IMPORTS_RCLPY = re.compile(r"^\s*(import|from)\s+rclpy\b", re.MULTILINE)
 
@@ -33,7 +34,7 @@ def test_only_the_ros_worker_creates_subscriptions_publishers_or_callback_groups
 
 
 def test_the_http_side_and_ipc_never_import_rclpy():
-    offenders = [str(p.relative_to(REPO)) for p in python_files("app", "ipc")
+    offenders = [str(p.relative_to(REPO)) for p in python_files("app", "supervisor", "ipc", "common")
                  if IMPORTS_RCLPY.search(p.read_text())]
     assert not offenders, f"rclpy imported on the HTTP side: {offenders}"
 
@@ -46,18 +47,87 @@ def test_the_gate_itself_catches_an_offender():
 
 
 def test_gevent_stays_out_of_the_ros_worker_and_the_supervisor():
-    """Only the HTTP workers use gevent (app/http_worker.py patches them after the fork)."""
-    files = [*python_files("rosworker"), REPO / "app" / "supervisor.py", REPO / "app" / "children.py"]
+    """Only the HTTP workers use gevent (app/http_worker.py patches them after the fork).
+
+    The supervisor's children are plain processes started by exec; ``common/`` is loaded by
+    all three, so it stays free of gevent too."""
+    files = [*python_files("rosworker", "supervisor", "common")]
     offenders = [str(p.relative_to(REPO)) for p in files if "gevent" in p.read_text()]
     assert not offenders, f"gevent named outside the HTTP workers: {offenders}"
 
 
-# Imported for real (not grepped): rosworker/ and ipc/ load nothing from app/, so the HTTP side
+# One package per process (supervisor/, app/, rosworker/), the wire (ipc/) and what all three share
+# (common/): which of the gateway's packages each may import.  Read from the source (every import
+# statement, function-level ones too), so that a wrong-way import fails here before it is used.
+OURS = ("app", "supervisor", "rosworker", "ipc", "common", "demo", "bench", "tests")
+MAY_IMPORT = {
+    "common": set(),
+    "ipc": set(),
+    "app": {"ipc", "common"},
+    "supervisor": {"ipc", "common"},
+    "rosworker": {"ipc", "common"},
+    "demo": {"supervisor"},  # demo/run.py starts the demo robot with the supervisor's Child
+}
+
+
+def imported_packages(path) -> set[str]:
+    """The top-level names ``path`` imports absolutely (relative imports stay in its package)."""
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names.update(alias.name.split(".")[0] for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names.add(node.module.split(".")[0])
+    return names
+
+
+def test_each_package_imports_only_the_packages_below_it():
+    offenders = []
+    for top, allowed in MAY_IMPORT.items():
+        for path in python_files(top):
+            wrong = {n for n in imported_packages(path) if n in OURS and n != top} - allowed
+            if wrong:
+                offenders.append(f"{path.relative_to(REPO)} imports {sorted(wrong)}")
+    assert not offenders, "imports against the layout:\n" + "\n".join(offenders)
+
+
+# The bench runs from tests/ (tests/system/test_bench_smoke.py), not the other way round: a test
+# may move without breaking ``make bench``.  Its one link to tests/ is the process harness both
+# start the gateway with (a private ROS domain, processes with deadlines, the gateway as an
+# operator starts it); its ROS programs and load clients are its own (bench/).
+BENCH_MAY_IMPORT_FROM_TESTS = {"tests.support.procs", "tests.support.gateway"}
+
+
+def test_the_bench_imports_nothing_from_tests_but_the_process_harness():
+    offenders = []
+    for path in python_files("bench"):
+        tree = ast.parse(path.read_text(), str(path))
+        for node in ast.walk(tree):
+            names = []
+            if isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names = [node.module] if node.module != "tests.support" else \
+                    [f"tests.support.{alias.name}" for alias in node.names]
+            elif isinstance(node, ast.Constant) and isinstance(node.value, str):
+                names = re.findall(r"^tests\.[\w.]+$", node.value)  # "-m", "tests.support.x"
+            offenders += [f"{path.relative_to(REPO)}: {n}" for n in names
+                          if (n == "tests" or n.startswith("tests.")) and n not in BENCH_MAY_IMPORT_FROM_TESTS]
+    assert not offenders, "bench/ uses tests/:\n" + "\n".join(offenders)
+
+
+def test_the_import_gate_reads_function_level_imports(tmp_path):
+    probe = tmp_path / "mod.py"
+    probe.write_text("from . import sibling\ndef f():\n    from app.wsgi import create_app\n    import ipc.protocol\n")
+    assert imported_packages(probe) == {"app", "ipc"}
+
+
+# Imported for real (not grepped): rosworker/, supervisor/, ipc/ and common/ load nothing from app/, so the HTTP side
 # may change (Flask, gunicorn, gevent) without touching the process that owns rclpy.
 CHECK = r"""
 import importlib, pkgutil, sys
-import ipc, rosworker
-for pkg in (ipc, rosworker):
+import common, ipc, rosworker, supervisor
+for pkg in (common, ipc, rosworker, supervisor):
     for mod in pkgutil.iter_modules(pkg.__path__):
         importlib.import_module(f"{pkg.__name__}.{mod.name}")
 loaded = sorted(m for m in sys.modules if m == "app" or m.startswith("app."))
@@ -65,7 +135,20 @@ print(",".join(loaded))
 """
 
 
-def test_rosworker_and_ipc_import_nothing_from_app():
+def test_rosworker_supervisor_ipc_and_common_import_nothing_from_app():
     out = subprocess.run([sys.executable, "-c", CHECK], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == "", f"modules of app/ imported by rosworker/ or ipc/: {out.stdout.strip()}"
+    assert out.stdout.strip() == "", f"modules of app/ imported outside the HTTP workers: {out.stdout.strip()}"
+
+
+# Tests mirror the code: tests/<package>/ for each package, tests/system/ for the gateway as it is
+# deployed, tests/reliability/ for load and faults; only this file stays at the top.
+TEST_FOLDERS = {"app", "supervisor", "rosworker", "ipc", "common", "system", "reliability"}
+
+
+def test_every_test_module_lives_in_the_folder_of_what_it_tests():
+    misplaced = [str(p.relative_to(REPO)) for p in (REPO / "tests").rglob("test_*.py")
+                 if "__pycache__" not in p.parts and p != REPO / "tests" / "test_layout.py"
+                 and p.relative_to(REPO / "tests").parts[0] not in TEST_FOLDERS]
+    assert not misplaced, f"test modules outside tests/{{{','.join(sorted(TEST_FOLDERS))}}}/: {misplaced}"
+    assert TEST_FOLDERS - {"system", "reliability"} <= {p.name for p in REPO.iterdir() if (p / "__init__.py").exists()}

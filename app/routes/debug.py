@@ -11,7 +11,7 @@ Under ``/api/v1/x-sovd-debug/``, left out of the OpenAPI document:
 - ``GET echo``: one request/reply round trip through ``ipc/client.py`` (the
   client every ROS-worker call uses, with its channel pool) to the bench's
   echo process on ``ipc://<runtime_dir>/bench-echo.sock``
-  (``tests/support/echoworker.py``): the pure-hop reference of ``make
+  (``bench/echoworker.py``): the pure-hop reference of ``make
   bench``.  503 ``x-medkit-ros-worker-unavailable`` when no echo process runs.
 - ``GET worker``: ``{pid, green}``: which HTTP worker answered, and whether
   its ZeroMQ client is ``zmq.green``'s.

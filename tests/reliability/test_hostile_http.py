@@ -562,7 +562,7 @@ def test_idle_connections_do_not_starve_the_http_workers(gateways):
 
 
 def test_slow_clients_through_nginx_do_not_starve_the_gateway(gateways, tmp_path):
-    from tests.test_nginx import Nginx, nginx_binary
+    from tests.system.test_nginx import Nginx, nginx_binary
 
     nginx_binary()
     gw = gateways("--workers", "1", "--worker-connections", "64", "--log-level", "warning")

@@ -2,7 +2,7 @@
 
 Short form (``make test``): 300 streams for 10 s; long form (``make
 reliability``): the full 1,000 for 30 s.  10 topics at ``normal`` (5 frames/s
-each), read by two client processes (``tests/support/sseload.py``), while a
+each), read by two client processes (``bench/sseload.py``), while a
 probe polls ``/health``.
 
 Nothing may crash or hang: every stream opens and gets its frames (a
@@ -29,7 +29,7 @@ APP = "stream_pubs"
 
 
 def read(gw, paths: list[str], open_for: float, measure_from: float) -> dict:
-    procs = [Proc([sys.executable, "-m", "tests.support.sseload", json.dumps({
+    procs = [Proc([sys.executable, "-m", "bench.sseload", json.dumps({
         "port": gw.port, "paths": paths[i::2], "period": 0.2, "open_for": open_for,
         "measure_from": measure_from, "connect_rate": 200})], name=f"sseload{i}") for i in range(2)]
     outs = []

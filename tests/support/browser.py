@@ -1,4 +1,4 @@
-"""Debian's chromium, driven by playwright, for the dashboard's tests (tests/test_ui.py).
+"""Debian's chromium, driven by playwright, for the dashboard's tests (tests/system/test_ui.py).
 
 playwright's own browser download cannot be reached here, so playwright drives
 the ``chromium`` package (``/usr/bin/chromium``; ``SOVD_CHROMIUM`` names another)

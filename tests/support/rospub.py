@@ -25,7 +25,7 @@ import importlib
 import json
 import sys
 
-from tests.support import rosmain
+from bench import rosmain
 
 
 def _load(type_name: str):

@@ -1,0 +1,280 @@
+"""Real responses of every route validate against the OpenAPI 3.1 document (GET /api/v1/docs).
+
+Every documented operation is exercised, and every status a request gets must
+be documented for its operation (or fall under ``default``).
+"""
+
+from __future__ import annotations
+
+import re
+
+import jsonschema
+import pytest
+
+from app import openapi
+from app.entities import RELATIONS
+from app.routes import unimplemented
+from ipc.errors import IpcError
+from tests.support.fakeworker import ROBOT, FakeWorker, data_sample, make_app
+
+TOKEN = "s3cret-token-0123456789"
+PUT_BODY = {"type": "std_msgs/msg/Bool", "data": {"data": True}}
+ENTITY = {"areas": None, "components": "test-robot", "apps": "temp_sensor", "functions": "powertrain"}
+
+
+@pytest.fixture(scope="module")
+def doc():
+    return openapi.document()
+
+
+def _template_regex(template: str) -> re.Pattern:
+    parts = re.split(r"(\{[^}]+\})", template)
+    out = ""
+    for part in parts:
+        if part == "{data_id}":
+            out += r"[\s\S]*"
+        elif part.startswith("{"):
+            out += "[^/]+"
+        else:
+            out += re.escape(part)
+    return re.compile(out)
+
+
+def operation(doc, method: str, path: str) -> tuple[str, dict]:
+    path = path.split("?", 1)[0]
+    # Paths under the API base are relative to it; an operation with a server of its own
+    # (GET /metrics) is matched by its whole path.
+    rel = path[len("/api/v1"):] if path == "/api/v1" or path.startswith("/api/v1/") else path
+    matches = [t for t in doc["paths"] if _template_regex(t).fullmatch(rel)]
+    # OpenAPI: concrete paths match before templated ones (`/apps/docs` before `/apps/{app_id}`).
+    fewest = min((t.count("{") for t in matches), default=0)
+    matches = [t for t in matches if t.count("{") == fewest]
+    assert len(matches) == 1, f"{path} matches {matches}"
+    ops = doc["paths"][matches[0]]
+    assert method.lower() in ops, f"{method} {matches[0]} is not documented"
+    return f"{method.upper()} {matches[0]}", ops[method.lower()]
+
+
+def resolve(doc, node: dict) -> dict:
+    while "$ref" in node and node["$ref"].startswith("#/components/responses/"):
+        node = doc["components"]["responses"][node["$ref"].rsplit("/", 1)[1]]
+    return node
+
+
+def check(doc, method: str, path: str, response) -> str:
+    key, op = operation(doc, method, path)
+    status = str(response.status_code)
+    documented = op["responses"].get(status) or op["responses"].get("default")
+    if status not in op["responses"]:
+        # `default` only covers errors: a success code must be listed.
+        assert response.status_code >= 400, f"{key} answered {status}, which is not documented"
+    spec = resolve(doc, documented)
+    if "content" not in spec:  # 204: no body at all
+        assert response.data == b"", f"{key} {status} has a body"
+        return key
+    if "application/json" not in spec["content"]:  # text (the metrics)
+        assert any(response.headers["Content-Type"].startswith(kind) for kind in spec["content"]), key
+        return key
+    schema = spec["content"]["application/json"]["schema"]
+    assert response.headers["Content-Type"] == "application/json"
+    validator = jsonschema.Draft202012Validator({**schema, "components": doc["components"]})
+    errors = sorted(validator.iter_errors(response.get_json()), key=str)
+    assert not errors, f"{key} {status}: " + "; ".join(e.message for e in errors[:5])
+    return key
+
+
+def test_schemas_are_valid_json_schema(doc):
+    for schema in doc["components"]["schemas"].values():
+        jsonschema.Draft202012Validator.check_schema(schema)  # raises, naming the problem
+    assert doc["openapi"] == "3.1.0"
+
+
+def test_names_generated_clients_see_are_medkits(doc):
+    """The names medkit's published spec gives, which generated clients import."""
+    assert doc["info"]["x-sovd-version"] == "1.0.0"
+    assert doc["components"]["responses"]["GenericError"]["content"]["application/json"]["schema"] == {
+        "$ref": "#/components/schemas/GenericError"}
+    assert {"GenericError", "ComponentList", "ComponentListItem", "ComponentDetail", "AppList", "AppListItem",
+            "AppDetail", "AreaList", "AreaDetail", "FunctionList", "FunctionDetail", "XMedkitApp",
+            "XMedkitCollection", "DataItem", "DataList", "DataValue", "DataWriteRequest", "HealthStatus",
+            "RootOverview", "VersionInfo"} <= set(doc["components"]["schemas"])
+    ops = {f"{m.upper()} {p}": (op["operationId"], op["tags"]) for p, path in doc["paths"].items()
+           for m, op in path.items()}
+    assert ops["GET /components"] == ("listComponents", ["Discovery"])
+    assert ops["GET /apps/{app_id}"] == ("getApp", ["Discovery"])
+    assert ops["GET /apps/{app_id}/is-located-on"] == ("getAppHost", ["Discovery"])
+    assert ops["GET /apps/{app_id}/belongs-to"] == ("getAppArea", ["Discovery"])
+    assert ops["GET /apps/{app_id}/depends-on"] == ("listAppDependencies", ["Discovery"])
+    assert ops["GET /components/{component_id}/hosts"] == ("listComponentHosts", ["Discovery"])
+    assert ops["GET /components/{component_id}/subcomponents"] == ("listSubcomponents", ["Discovery"])
+    assert ops["GET /components/{component_id}/depends-on"] == ("listComponentDependencies", ["Discovery"])
+    assert ops["GET /functions/{function_id}/hosts"] == ("listFunctionHosts", ["Discovery"])
+    assert ops["GET /areas/{area_id}/contains"] == ("listAreaContains", ["Discovery"])
+    assert ops["GET /apps/{app_id}/data"] == ("listAppData", ["Data"])
+    assert ops["GET /apps/{app_id}/data/{data_id}"] == ("getAppDataItem", ["Data"])
+    assert ops["PUT /components/{component_id}/data/{data_id}"] == ("putComponentDataItem", ["Data"])
+    assert ops["GET /health"] == ("getHealth", ["Server"])
+    assert len({op_id for op_id, _ in ops.values()}) == len(ops)  # operationIds are unique
+    # Every error response is the one GenericError response.
+    for path in doc["paths"].values():
+        for op in path.values():
+            for status, response in op["responses"].items():
+                if status == "default" or int(status) >= 400:
+                    assert response["$ref"] == "#/components/responses/GenericError", (op["operationId"], status)
+                    assert response["description"]
+
+
+def test_every_route_answers_per_the_document(doc):
+    with FakeWorker() as fw:
+        fw.set_graph(list(ROBOT))
+        fw.samples["/powertrain/engine/temperature"] = data_sample(
+            "/powertrain/engine/temperature", "sensor_msgs/msg/Temperature", {"temperature": 93.5})
+        fw.type_infos["sensor_msgs/msg/Temperature"] = {"schema": {"type": "object"},
+                                                        "default_value": {"temperature": 0.0}}
+        client = make_app(fw, allow_publish=True, api_token=TOKEN, max_body_bytes=1024).test_client()
+        auth = {"Authorization": f"Bearer {TOKEN}"}
+        requests: list[tuple[str, str, dict]] = [
+            ("GET", "/api/v1/", {}), ("GET", "/api/v1/version-info", {}), ("GET", "/api/v1/health", {}),
+            ("GET", "/api/v1/docs", {}), ("GET", "/metrics", {}),
+        ]
+        for collection, relation in RELATIONS:
+            base = f"/api/v1/{collection}"
+            requests += [("GET", f"{base}/{ENTITY[collection] or 'nope'}/{relation}", {}),
+                         ("GET", f"{base}/nope/{relation}", {}), ("GET", f"{base}/b.d/{relation}", {})]
+        for collection, eid in ENTITY.items():
+            base = f"/api/v1/{collection}"
+            target = eid or "nope"
+            requests += [
+                ("GET", f"{base}/docs", {}),
+                ("GET", f"{base}/{target}/docs", {}),
+                ("GET", f"{base}/{target}/data/docs", {}),
+                ("GET", base, {}),
+                ("GET", f"{base}/{target}", {}),
+                ("GET", f"{base}/bad.id", {}),
+                ("GET", f"{base}/nope", {}),
+                ("GET", f"{base}/{target}/data", {}),
+                ("GET", f"{base}/{target}/data/powertrain/engine/temperature", {}),
+                ("GET", f"{base}/{target}/data/powertrain%2Fengine%2Ftemperature?bytes=base64", {}),
+                ("GET", f"{base}/{target}/data//not/sampled/yet", {}),
+                ("GET", f"{base}/{target}/data/bad-topic", {}),
+                ("GET", f"{base}/{target}/data/x?bytes=hex", {}),
+                ("GET", f"{base}/{target}/data-categories", {}),
+                ("GET", f"{base}/{target}/data-groups", {}),
+                ("PUT", f"{base}/{target}/data/body/lights/cmd", {"json": PUT_BODY, "headers": auth}),
+                ("PUT", f"{base}/{target}/data/body/lights/cmd", {"json": PUT_BODY}),
+                ("PUT", f"{base}/{target}/data/body/lights/cmd",
+                 {"json": PUT_BODY, "headers": {"Authorization": "Bearer wrong"}}),
+                ("PUT", f"{base}/{target}/data/body/lights/cmd", {"data": b"nope", "headers": auth}),
+                ("PUT", f"{base}/{target}/data/body/lights/cmd",
+                 {"json": PUT_BODY, "headers": {**auth, "Content-Type": "text/plain"}}),
+                ("PUT", f"{base}/{target}/data/body/lights/cmd",
+                 {"json": {"type": "bad", "data": {}}, "headers": auth}),
+                ("PUT", f"{base}/{target}/data/body/lights/cmd",
+                 {"json": {"type": "std_msgs/msg/String", "data": {"data": "x" * 2000}}, "headers": auth}),
+            ]
+        seen: dict[str, set[int]] = {}
+        for method, path, kw in requests:
+            r = client.open(path, method=method, **kw)
+            key = check(doc, method, path, r)
+            seen.setdefault(key, set()).add(r.status_code)
+
+        # Cyclic subscriptions (their event streams' 200 is text/event-stream: tests/app/test_app_streams.py).
+        for collection in ("apps", "components", "functions"):
+            base = f"/api/v1/{collection}/{ENTITY[collection]}/cyclic-subscriptions"
+            resource = f"/api/v1/{collection}/{ENTITY[collection]}/data/powertrain/engine/temperature"
+            good = {"resource": resource, "interval": "fast", "duration": 30}
+            made = client.post(base, json=good, headers=auth)
+            sub = f"{base}/{made.get_json()['id']}"
+            wrong = {"Authorization": "Bearer wrong"}
+            for method, path, kw in [
+                ("POST", base, {"json": good, "headers": auth}),
+                ("POST", base, {"json": {**good, "interval": "hourly"}, "headers": auth}),
+                ("POST", base, {"json": {**good, "resource": "/api/v1/apps/x/faults"}, "headers": auth}),
+                ("POST", f"/api/v1/{collection}/nope/cyclic-subscriptions", {"json": good, "headers": auth}),
+                ("POST", base, {"json": good}), ("POST", base, {"json": good, "headers": wrong}),
+                ("GET", base, {}), ("GET", f"/api/v1/{collection}/bad.id/cyclic-subscriptions", {}),
+                ("GET", sub, {}), ("GET", base + "/sub_0000000000000000", {}),
+                ("POST", base, {"data": b"{}", "content_type": "text/plain", "headers": auth}),
+                ("PUT", sub, {"json": {"interval": "slow"}, "headers": auth}),
+                ("PUT", sub, {"json": {"duration": -1}, "headers": auth}),
+                ("PUT", sub, {"data": b'{"interval": "slow"}', "content_type": "text/plain", "headers": auth}),
+                ("PUT", base + "/sub_0000000000000000", {"json": {"interval": "slow"}, "headers": auth}),
+                ("PUT", sub, {"json": {"interval": "slow"}}), ("PUT", sub, {"json": {"interval": "slow"},
+                                                                             "headers": wrong}),
+                ("GET", base + "/sub_0000000000000000/events", {}),
+                ("DELETE", sub, {}), ("DELETE", sub, {"headers": wrong}),
+                ("DELETE", sub, {"headers": auth}), ("DELETE", sub, {"headers": auth}),
+            ]:
+                r = client.open(path, method=method, **kw)
+                check(doc, method, path, r)
+                seen.setdefault(operation(doc, method, path)[0], set()).add(r.status_code)
+        # medkit's routes not served here: 501 whatever the ids (app/routes/unimplemented.py).
+        for route, path, _ in unimplemented.paths():
+            concrete = "/api/v1" + re.sub(r"\{[^}]+\}", "x1", path)
+            r = client.open(concrete, method=route.method)
+            assert r.status_code == 501, (route.method, concrete, r.data)
+            seen.setdefault(check(doc, route.method, concrete, r), set()).add(r.status_code)
+        fw.errors["sub_create"] = IpcError("subscriptions-full", "full", {"max_subscriptions": 1000})
+        r = client.post("/api/v1/apps/temp_sensor/cyclic-subscriptions", json={
+            "resource": "/api/v1/apps/temp_sensor/data/x", "interval": "slow", "duration": 5}, headers=auth)
+        assert r.status_code == 503
+        check(doc, "POST", "/api/v1/apps/temp_sensor/cyclic-subscriptions", r)
+
+        # The ROS worker's troubles, as documented.
+        fw.errors["sample"] = IpcError("cold-wait-cap-exceeded", "cap", {"topic": "/x", "cold_wait_cap": 4})
+        r = client.get("/api/v1/apps/temp_sensor/data/x")
+        assert r.status_code == 503
+        check(doc, "GET", "/api/v1/apps/temp_sensor/data/x", r)
+        fw.errors["publish"] = IpcError("type-not-installed", "not installed")
+        r = client.put("/api/v1/apps/temp_sensor/data/x", json=PUT_BODY, headers=auth)
+        assert r.status_code == 400
+        check(doc, "PUT", "/api/v1/apps/temp_sensor/data/x", r)
+        fw.errors["sample"] = IpcError("deadline-exceeded", "late")
+        r = client.get("/api/v1/apps/temp_sensor/data/x")
+        assert r.status_code == 504
+        check(doc, "GET", "/api/v1/apps/temp_sensor/data/x", r)
+        fw.stop()
+        for path in ("/api/v1/health", "/api/v1/apps", "/api/v1/apps/temp_sensor",
+                     "/api/v1/components/test-robot/hosts", "/api/v1/apps/temp_sensor/docs"):
+            check(doc, "GET", path, client.get(path))
+
+    documented = {f"{m.upper()} {p}" for p, ops in doc["paths"].items() for m in ops}
+    assert documented == set(seen), f"not exercised: {documented - set(seen)}"
+    # Successes of entity routes were seen for every collection that has entities.
+    assert 200 in seen["GET /apps/{app_id}/data/{data_id}"]
+    assert 200 in seen["PUT /functions/{function_id}/data/{data_id}"]
+    assert {400, 401, 403, 413, 415} <= seen["PUT /components/{component_id}/data/{data_id}"]
+    for op in ("POST /apps/{app_id}/cyclic-subscriptions", "PUT /apps/{app_id}/cyclic-subscriptions/{subscription_id}"):
+        assert 415 in seen[op], op
+    for collection, relation in RELATIONS:  # each relation answered, and refused both ways
+        param = "{" + collection[:-1] + "_id}"
+        expected = {400, 404} if collection == "areas" else {200, 400, 404}
+        assert seen[f"GET /{collection}/{param}/{relation}"] == expected
+    assert seen["GET /apps/{app_id}/data/docs"] == {200}
+    assert seen["GET /areas/{area_id}/docs"] == {404}
+
+
+def test_every_operation_with_a_json_body_documents_the_body_errors(doc):
+    """415 (not declared JSON), 413 (too large) and 408 (too slow): app/routes/bodies.py, on every body."""
+    with_body = [(method, path, op) for path, ops in doc["paths"].items() for method, op in ops.items()
+                 if "requestBody" in op]
+    assert len(with_body) == 10  # PUT data of 4 collections; POST and PUT cyclic-subscriptions of 3
+    for method, path, op in with_body:
+        assert list(op["requestBody"]["content"]) == ["application/json"], (method, path)
+        assert {"408", "413", "415"} <= set(op["responses"]), (method, path)
+
+
+def test_rate_limits_and_metrics_are_documented(doc):
+    """429 on every rate-limited operation (all but health and metrics); GET /metrics beside the base."""
+    for path, ops in doc["paths"].items():
+        for method, op in ops.items():
+            if op["operationId"] in ("getHealth", "getMetrics"):
+                assert "429" not in op["responses"], op["operationId"]
+            else:
+                assert op["responses"]["429"]["$ref"] == "#/components/responses/GenericError", (method, path)
+    metrics = doc["paths"]["/metrics"]["get"]
+    assert metrics["servers"] == [{"url": "/", "description": metrics["servers"][0]["description"]}]
+    assert "text/plain" in metrics["responses"]["200"]["content"]
+    headers = doc["components"]["responses"]["GenericError"]["headers"]
+    assert {"Retry-After", "X-RateLimit-Limit", "X-RateLimit-Remaining", "X-RateLimit-Reset"} <= set(headers)
+    assert "GET /metrics" in openapi.endpoint_list()

@@ -1,0 +1,134 @@
+"""Settings: defaults, the three sources and their precedence, and refusals that name the problem."""
+
+from __future__ import annotations
+
+import argparse
+
+import pytest
+
+from common import settings as config
+
+
+def load(argv=(), env=None, toml: str | None = None, tmp_path=None):
+    parser = argparse.ArgumentParser()
+    config.add_arguments(parser)
+    args = parser.parse_args(list(argv))
+    environ = dict(env or {})
+    if toml is not None:
+        path = tmp_path / "gateway.toml"
+        path.write_text(toml)
+        environ["SOVD_CONFIG"] = str(path)
+    return config.load(args, environ)
+
+
+def test_defaults_match_the_architecture_table():
+    cfg = load()
+    assert (cfg.sample_timeout, cfg.max_pool_size, cfg.cold_wait_cap, cfg.idle_safety_net,
+            cfg.idle_sweep_tick, cfg.max_queue_depth, cfg.watchdog_threshold, cfg.graph_poll_tick) == \
+        (1.0, 256, 4, 900.0, 60.0, 256, 5000, 100)
+    assert cfg.bind == "127.0.0.1:8080"
+    assert cfg.allow_publish is False
+
+
+def test_flags_win_over_environment_which_wins_over_the_file(tmp_path):
+    cfg = load(["--max-pool-size", "30"], {"SOVD_MAX_POOL_SIZE": "20", "SOVD_SAMPLE_TIMEOUT": "2.5"},
+               "max_pool_size = 10\nsample_timeout = 0.5\ncold_wait_cap = 0\n", tmp_path)
+    assert cfg.max_pool_size == 30
+    assert cfg.sample_timeout == 2.5
+    assert cfg.cold_wait_cap == 0  # 0 = no cap is allowed below the range
+
+
+def test_to_env_round_trips():
+    cfg = load(["--allow-publish", "--workers", "3"])
+    again = config.load(None, cfg.to_env())
+    assert again == cfg
+
+
+@pytest.mark.parametrize("argv, env, needle", [
+    (["--sample-timeout", "0.01"], {}, "sample_timeout (from flag --sample-timeout): 0.01 is out of range"),
+    (["--max-pool-size", "5000"], {}, "allowed: 1–4096"),
+    ([], {"SOVD_COLD_WAIT_CAP": "-1"}, "cold_wait_cap (from environment SOVD_COLD_WAIT_CAP)"),
+    ([], {"SOVD_MAX_POOL_SIZE": "many"}, "'many' is not a valid int"),
+    ([], {"SOVD_SAMPLE_TIMEOUT": "nan"}, "is not a valid float"),
+    ([], {"SOVD_ALLOW_PUBLISH": "perhaps"}, "is not a valid bool"),
+    (["--bind", "localhost"], {}, "is not HOST:PORT"),
+    (["--bind", "127.0.0.1:70000"], {}, "port of 1–65535"),
+    (["--gateway-name", "9bad"], {}, "not a valid ROS node name"),
+    (["--log-level", "loud"], {}, "one of debug, info, warning, error"),
+    (["--api-token", "short"], {}, "at least 16 characters"),
+])
+def test_out_of_range_values_are_refused_with_a_clear_message(argv, env, needle):
+    with pytest.raises(config.ConfigError) as info:
+        load(argv, env)
+    assert needle in str(info.value)
+
+
+def test_config_file_errors_name_the_file_and_key(tmp_path):
+    with pytest.raises(config.ConfigError, match="unknown setting 'max_pool'"):
+        load(toml="max_pool = 3\n", tmp_path=tmp_path)
+    with pytest.raises(config.ConfigError, match="not valid TOML"):
+        load(toml="max_pool_size = = 3\n", tmp_path=tmp_path)
+    with pytest.raises(config.ConfigError, match="config file .*: 0 is out of range"):
+        load(toml="max_pool_size = 0\n", tmp_path=tmp_path)
+
+
+def test_runtime_dir_is_created_private(tmp_path):
+    path = tmp_path / "rt"
+    config.ensure_runtime_dir(str(path))
+    assert path.stat().st_mode & 0o777 == 0o700
+    path.chmod(0o755)
+    config.ensure_runtime_dir(str(path))
+    assert path.stat().st_mode & 0o777 == 0o700
+
+
+def test_worker_connections_replaces_threads_which_is_ignored_from_every_source(tmp_path):
+    assert load().worker_connections == 1000
+    assert load(["--worker-connections", "64"]).worker_connections == 64
+    with pytest.raises(config.ConfigError, match="worker_connections .*out of range"):
+        load(["--worker-connections", "0"])
+    cfg = load(["--threads", "4"], {"SOVD_THREADS": "8"}, "threads = 2\nworkers = 3\n", tmp_path)
+    assert cfg.workers == 3 and "threads" not in cfg
+    assert [note.split(" is no longer")[0] for note in cfg.ignored] == [
+        f"threads (from config file {tmp_path / 'gateway.toml'})", "threads (from environment SOVD_THREADS)",
+        "threads (from flag --threads)"]
+    assert all("worker_connections" in note for note in cfg.ignored)
+    assert "SOVD_THREADS" not in cfg.to_env()
+    assert load().ignored == ()
+
+
+def test_fleet_settings_are_off_by_default_and_work_from_every_source(tmp_path):
+    cfg = load()
+    assert (cfg.cors_origins, cfg.rate_limit, cfg.rate_limit_global, cfg.access_log) == ("", "", "", False)
+    assert config.parse_rate(cfg.rate_limit) is None and config.parse_origins(cfg.cors_origins) is None
+    cfg = load(["--rate-limit", "50/100", "--access-log"], {"SOVD_RATE_LIMIT_GLOBAL": "200/400"},
+               'cors_origins = "https://ui.example:8443, http://localhost:3000"\n', tmp_path)
+    assert config.parse_rate(cfg.rate_limit) == config.Rate(50.0, 100)
+    assert config.parse_rate(cfg.rate_limit_global) == config.Rate(200.0, 400)
+    assert config.parse_rate("2.5") == config.Rate(2.5, 3)  # no burst: the rate, rounded up
+    assert config.parse_origins(cfg.cors_origins) == ("https://ui.example:8443", "http://localhost:3000")
+    assert config.parse_origins("*") == "*"
+    # An IPv6 literal as a browser writes it in Origin: lower case, zeros compressed.
+    assert config.parse_origins("http://[FD00:0:0::10]:8443,https://[::1]") == (
+        "http://[fd00::10]:8443", "https://[::1]")
+    assert cfg.access_log is True
+    assert config.load(None, cfg.to_env()) == cfg
+
+
+@pytest.mark.parametrize("argv, env, needle", [
+    (["--rate-limit", "fast"], {}, "rate_limit (from flag --rate-limit): 'fast' is not RATE/BURST"),
+    ([], {"SOVD_RATE_LIMIT_GLOBAL": "0/10"}, "rate_limit_global (from environment SOVD_RATE_LIMIT_GLOBAL): "
+                                              "rate 0 is out of range"),
+    (["--rate-limit", "5/0"], {}, "burst 0 is out of range"),
+    ([], {"SOVD_RATE_LIMIT": "-5/10"}, "is not RATE/BURST"),
+    (["--cors-origins", "https://ui.example/"], {}, "cors_origins (from flag --cors-origins): "
+                                                     "'https://ui.example/' is not an origin"),
+    (["--cors-origins", "*.example.com"], {}, "is not an origin"),
+    (["--cors-origins", "*,https://ui.example"], {}, "give it alone"),
+    (["--cors-origins", "ftp://ui.example"], {}, "with http or https"),
+    (["--cors-origins", "http://[fd00:::10]:8443"], {}, "[fd00:::10] is not an IPv6 address"),
+    ([], {"SOVD_ACCESS_LOG": "sometimes"}, "is not a valid bool"),
+])
+def test_fleet_settings_refuse_bad_values_naming_the_source(argv, env, needle):
+    with pytest.raises(config.ConfigError) as info:
+        load(argv, env)
+    assert needle in str(info.value)

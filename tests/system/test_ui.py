@@ -1,0 +1,457 @@
+"""The dashboard in a real browser: Debian's chromium (playwright) against a real gateway and the demo robot.
+
+One demo robot, one gateway (publishing on, with a token) and one browser for
+the module; each test gets a fresh browser context (page).  Every page is
+watched (tests/support/browser.py): a console error, an uncaught exception, a
+failed request or an HTTP error answer that the test did not provoke fails the
+test.  Waits are playwright's own (``expect`` with a timeout) or polls of the
+API to a deadline.
+
+``SOVD_UI_SCREENSHOT=<path>`` makes the live-value test save its screenshot
+there (``make screenshot`` refreshes docs/dashboard.png that way).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import sys
+
+import pytest
+import requests
+
+from tests.support.browser import Watch, launch, require_chromium
+from tests.support.gateway import Gateway
+from tests.support.procs import Proc, poll_until
+
+TOKEN = "ui-test-token-0123456789"
+# The demo robot's apps and one topic of each (demo/robot.py).
+DEMO = {
+    "temp_sensor": "/powertrain/engine/temperature",
+    "pressure_sensor": "/chassis/brakes/pressure",
+    "odometry": "/chassis/odom",
+    "controller": "/body/lights/state",
+    "diagnostics_agent": "/diagnostics",
+    "camera": "/perception/camera/image_raw",
+    "battery_monitor": "/power/battery",
+}
+VIEWPORT = {"width": 1360, "height": 860}
+NUMBER = re.compile(r"^-?\d")
+
+
+def expect(*args, **kw):
+    from playwright.sync_api import expect as playwright_expect
+
+    return playwright_expect(*args, **kw)
+
+
+def demo_is_discovered(gw: Gateway) -> bool:
+    host = gw.host()
+    names = {i["id"] for i in gw.get(f"/components/{host}/data").json()["items"]}
+    return set(DEMO.values()) | {"/body/lights/command"} <= names
+
+
+@pytest.fixture(scope="module")
+def browser():
+    require_chromium()
+    from playwright.sync_api import expect as playwright_expect
+
+    playwright_expect.set_options(timeout=15_000)   # a loaded 2-core machine is slow; no timing is asserted
+    with launch() as b:
+        yield b
+
+
+@pytest.fixture(scope="module")
+def robot(browser):
+    proc = Proc([sys.executable, "-m", "demo.robot"], name="demo robot")
+    try:
+        proc.wait_line(lambda line: line.startswith("demo robot running"), 60)
+    except BaseException:
+        proc.stop()
+        raise
+    yield proc
+    proc.stop()
+
+
+@pytest.fixture(scope="module")
+def gw(robot):
+    gateway = Gateway("--allow-publish", "--api-token", TOKEN)
+    try:
+        poll_until(lambda: demo_is_discovered(gateway), 60, interval=0.2, message="the demo robot's topics")
+    except BaseException:
+        gateway.stop()
+        raise
+    yield gateway
+    gateway.stop()
+
+
+@pytest.fixture
+def page(browser):
+    context = browser.new_context(viewport=VIEWPORT)
+    tab = context.new_page()
+    tab.set_default_timeout(15_000)
+    watch = Watch(tab)
+    yield tab, watch
+    problems = watch.stop()
+    try:
+        tab.goto("about:blank")   # pagehide: the page deletes its subscription (closing the context may not)
+    finally:
+        context.close()
+    assert problems == [], "\n".join(problems)
+
+
+def subscriptions(gw: Gateway, app: str) -> list[dict]:
+    return gw.get(f"/apps/{app}/cyclic-subscriptions").json()["items"]
+
+
+def none_left(gw: Gateway, app: str) -> None:
+    """Wait until no page of an earlier test holds a subscription of ``app``."""
+    poll_until(lambda: subscriptions(gw, app) == [], 10, message=f"no subscription of {app} left")
+
+
+def sign_in(tab) -> None:
+    """Give the page the gateway's token (in its header): it makes its subscriptions with it."""
+    expect(tab.locator("#token")).to_be_visible()
+    tab.fill("#token", TOKEN)
+
+
+def open_temperature(gw: Gateway, tab):
+    """Open the demo's engine temperature (no earlier page's subscription left): its live value."""
+    none_left(gw, "temp_sensor")
+    tab.goto(gw.url + "/ui/#/apps/temp_sensor/data/powertrain/engine/temperature")
+    sign_in(tab)
+    value = leaf(tab, "temperature")
+    expect(value).to_have_text(NUMBER)
+    return value
+
+
+def leaf(tab, path: str):
+    """The value of a leaf of the item view's JSON tree."""
+    return tab.locator(f"#item .json .leaf[data-path='{path}'] > .val")
+
+
+def test_the_tree_lists_the_demo_and_filters_by_topic_or_node(gw, page):
+    tab, _ = page
+    response = tab.goto(gw.url + "/")
+    assert tab.url == gw.url + "/ui/"
+    sign_in(tab)
+    headers = response.all_headers()
+    assert "default-src 'self'" in headers["content-security-policy"]
+    assert headers["x-content-type-options"] == "nosniff"
+    for app, topic in DEMO.items():
+        expect(tab.locator(f".tree .app[data-app='{app}']").first).to_be_attached()
+        expect(tab.locator(f"a.topic[data-app='{app}'][data-topic='{topic}']").first).to_be_attached()
+    # The tree follows the API's links: functions → apps as well.
+    expect(tab.locator(".tree details[data-key='f:perception:camera']")).to_be_attached()
+    # /rosout and /parameter_events (every node has them) only when asked for.
+    expect(tab.locator("a.topic[data-topic='/rosout']")).to_have_count(0)
+    tab.check("#show-system")
+    expect(tab.locator("a.topic[data-topic='/rosout']").first).to_be_attached()
+    tab.uncheck("#show-system")
+
+    tab.fill("#search", "image_raw")                   # a topic name
+    expect(tab.locator("a.topic[data-topic='/perception/camera/image_raw']").first).to_be_visible()
+    expect(tab.locator(".tree .app[data-app='pressure_sensor']")).to_have_count(0)
+    tab.fill("#search", "engine/temp_sensor")          # a ROS node name
+    link = tab.locator("a.topic[data-topic='/powertrain/engine/temperature']").first
+    expect(link).to_be_visible()
+    expect(tab.locator(".tree .app[data-app='camera']")).to_have_count(0)
+    link.click()
+    expect(tab).to_have_url(re.compile(r"/ui/#/apps/temp_sensor/data/powertrain/engine/temperature$"))
+    expect(tab.locator("#item h2")).to_have_text("/powertrain/engine/temperature")
+    expect(link).to_have_attribute("aria-current", "true")
+    expect(leaf(tab, "temperature")).to_have_text(NUMBER)
+
+
+def test_a_live_value_changes_on_screen_and_its_fields_plot(gw, page, tmp_path):
+    tab, _ = page
+    none_left(gw, "pressure_sensor")
+    tab.goto(gw.url + "/ui/#/apps/pressure_sensor/data/chassis/brakes/pressure")
+    # The gateway wants a token to make a subscription: the view waits for it, and asks nothing.
+    badge = tab.locator("#item .item-controls .badge")
+    expect(badge).to_have_text("waiting for the token")
+    expect(tab.locator("#item .stream-detail")).to_contain_text("bearer token")
+    assert subscriptions(gw, "pressure_sensor") == []
+    sign_in(tab)
+    value = leaf(tab, "fluid_pressure")
+    expect(value).to_have_text(NUMBER)
+    first = value.text_content()
+    expect(value).not_to_have_text(first, timeout=2000)    # the issue's bound: within 2 s
+    expect(tab.locator("#item .item-controls .badge")).to_have_text("live")
+    meta = tab.locator("#item .meta")
+    expect(meta.locator("dd[data-key='status']")).to_have_text("data")
+    expect(meta.locator("dd[data-key='publishers']")).to_have_text("1")
+    expect(meta.locator("dd[data-key='age']")).to_have_text(re.compile(r"\d+(\.\d)? (ms|s)$"))
+    (sub,) = subscriptions(gw, "pressure_sensor")
+    assert sub["interval"] == "normal"
+
+    tab.click("#item [data-interval='fast']")               # retimes the open stream (PUT)
+    poll_until(lambda: subscriptions(gw, "pressure_sensor")[0]["interval"] == "fast", 5,
+               message="the subscription retimed to fast")
+    assert subscriptions(gw, "pressure_sensor")[0]["id"] == sub["id"]
+
+    tab.click("#item button.pick[data-path='fluid_pressure']")
+    tab.wait_for_function("() => Number(document.querySelector('#item canvas.plot-canvas').dataset.spanMs) >= 2000",
+                          timeout=20_000)
+    drawn = tab.evaluate("""() => {
+        const c = document.querySelector('#item canvas.plot-canvas');
+        const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+        let line = 0;   // pixels of the first series' colour, #1f6feb
+        for (let i = 0; i < d.length; i += 4)
+            if (Math.abs(d[i] - 0x1f) < 40 && Math.abs(d[i + 1] - 0x6f) < 40 && d[i + 2] > 200) line++;
+        return line;
+    }""")
+    assert drawn > 100, drawn
+    expect(tab.locator("#item .legend")).to_contain_text("fluid_pressure")
+    # The health panel updates itself and counts this page's stream.
+    expect(tab.locator("#health tr[data-key='streams'] td")).to_have_text(re.compile(r"^[1-9]"))
+
+    shot = os.environ.get("SOVD_UI_SCREENSHOT") or str(tmp_path / "dashboard.png")
+    tab.screenshot(path=shot)
+    with open(shot, "rb") as fh:
+        assert fh.read(8) == b"\x89PNG\r\n\x1a\n"
+
+    tab.evaluate("location.hash = '#/'")                   # leaving the view ends its stream
+    expect(tab.locator("#item .placeholder")).to_be_visible()
+    poll_until(lambda: subscriptions(gw, "pressure_sensor") == [], 5, message="the subscription deleted")
+
+
+def test_an_image_topic_is_drawn_and_leaving_the_page_ends_its_stream(gw, page):
+    tab, watch = page
+    none_left(gw, "camera")
+    tab.goto(gw.url + "/ui/#/apps/camera/data/perception/camera/image_raw")
+    sign_in(tab)
+    tab.wait_for_function("() => Number(document.querySelector('#item canvas.image')?.dataset.drawn) >= 1")
+    image = tab.evaluate("""() => {
+        const c = document.querySelector('#item canvas.image');
+        return {w: c.width, h: c.height, px: Array.from(c.getContext('2d').getImageData(0, 0, c.width, c.height).data)};
+    }""")
+    assert (image["w"], image["h"]) == (64, 48)
+    px = image["px"]
+    bars = set()
+    for y in range(48):
+        for x in range(64):
+            r, g, b, a = px[(y * 64 + x) * 4:(y * 64 + x) * 4 + 4]
+            assert (r, g, a) == (4 * x, 5 * y, 255), (x, y, r, g, b, a)   # demo/robot.py's test pattern
+            assert b in (40, 255)
+            if b == 255:
+                bars.add(x)
+    assert len(bars) == 1                                  # one bright column: one whole frame
+    expect(tab.locator("#item .image-box")).to_contain_text("64 × 48 rgb8")
+    expect(leaf(tab, "data")).to_have_text(re.compile(r"^base64, 9216 bytes$"))   # not a list of numbers
+    (sub,) = subscriptions(gw, "camera")
+    assert sub["observed_resource"].endswith("?bytes=base64")
+
+    watch.stop()                     # the page goes away: its requests are cut on purpose
+    tab.goto("about:blank")
+    poll_until(lambda: subscriptions(gw, "camera") == [], 10, message="the subscription deleted on pagehide")
+
+
+def test_publish_through_the_form_and_read_it_back(gw, page):
+    tab, watch = page
+    tab.goto(gw.url + "/ui/#/apps/controller/data/body/lights/command")
+    form = tab.locator("#item form.publish")
+    expect(form).to_be_visible()
+    box = form.locator(".field[data-field='data.data'] input[type=checkbox]")
+    expect(box).not_to_be_checked()                       # std_msgs/msg/Bool's default value
+    box.check()
+    watch.allow("PUT", 401)
+    form.locator("button[type=submit]").click()
+    token_error = form.locator(".field[data-field='token'] .field-error")
+    expect(token_error).to_contain_text("Authentication required")
+    form.locator(".field[data-field='token'] input").fill(TOKEN)
+    form.locator("button[type=submit]").click()
+    expect(form.locator(".form-status")).to_contain_text("Published")
+    expect(token_error).to_have_text("")
+
+    tab.evaluate("location.hash = '#/apps/controller/data/body/lights/state'")
+    expect(leaf(tab, "data")).to_have_text('"on"', timeout=10_000)
+
+    # A value the gateway refuses: its error stands next to the field it names; nothing is sent to ROS.
+    tab.evaluate("location.hash = '#/apps/temp_sensor/data/powertrain/engine/temperature'")
+    form = tab.locator("#item form.publish")
+    expect(form).to_be_visible()
+    expect(form.locator(".field[data-field='token'] input")).to_have_value(TOKEN)   # kept in memory
+    expect(form.locator(".field[data-field='data.variance'] input")).to_have_value("0")
+    form.locator(".field[data-field='data.temperature'] input").fill("warm")
+    watch.allow("PUT", 400)
+    form.locator("button[type=submit]").click()
+    field_error = form.locator(".field[data-field='data.temperature'] .field-error")
+    expect(field_error).to_contain_text("data.temperature")
+    expect(form.locator(".form-status")).to_contain_text("Not published")
+    expect(leaf(tab, "temperature")).to_have_text(NUMBER)
+
+
+def test_without_publishing_there_is_no_form(robot, browser, page):
+    tab, watch = page
+    readonly = Gateway()
+    try:
+        poll_until(lambda: demo_is_discovered(readonly), 60, interval=0.2, message="the demo robot's topics")
+        tab.goto(readonly.url + "/ui/#/apps/controller/data/body/lights/command")
+        expect(tab.locator("#gateway-version")).to_contain_text("read-only")
+        # The view is complete (its stream answered: nobody publishes the command topic) ...
+        expect(tab.locator("#item .meta dd[data-key='status']")).to_have_text(re.compile(r"^metadata_only"))
+        expect(tab.locator("#item .json")).to_contain_text("nobody publishes")
+        # ... and has no form.
+        expect(tab.locator("#item form.publish")).to_have_count(0)
+        assert tab.locator("#item h2").text_content() == "/body/lights/command"
+    finally:
+        watch.stop()
+        tab.goto("about:blank")
+        readonly.stop()
+
+
+def test_a_ros_worker_restart_is_shown_and_the_view_recovers_by_itself(gw, page):
+    tab, _ = page
+    value = open_temperature(gw, tab)
+    badge = tab.locator("#worker-badge")
+    expect(badge).to_have_attribute("data-state", "healthy")
+    pid = gw.rosworker_pid()
+
+    gw.rosworker().kill()
+    expect(badge).to_have_attribute("data-state", "unavailable")
+    expect(badge).to_have_text("ROS worker unavailable")
+    expect(tab.locator("#health .alert")).to_contain_text("being restarted")
+    expect(tab.locator("#item .stream-error")).to_contain_text("x-medkit-ros-worker-unavailable")
+
+    expect(badge).to_have_attribute("data-state", "healthy", timeout=60_000)
+    assert gw.rosworker_pid() != pid
+    expect(tab.locator("#health .note")).to_contain_text("Recovered")
+    expect(tab.locator("#item .stream-error")).to_be_hidden(timeout=30_000)
+    before = value.text_content()
+    expect(value).not_to_have_text(before, timeout=10_000)   # live again, on the same subscription
+    assert len(subscriptions(gw, "temp_sensor")) == 1
+
+
+def test_non_finite_floats_are_shown_and_plotted_as_such(gw, page):
+    tab, _ = page
+    none_left(gw, "battery_monitor")
+    tab.goto(gw.url + "/ui/#/apps/battery_monitor/data/power/battery")
+    sign_in(tab)
+    expect(leaf(tab, "voltage")).to_have_text(NUMBER)
+    # The demo's battery does not measure its temperature: NaN, which JSON cannot carry (the
+    # gateway sends "NaN", or null, in a float field).
+    temperature = leaf(tab, "temperature")
+    expect(temperature).to_have_text(re.compile(r"^NaN( \(null\))?$"))
+    expect(temperature).to_have_class(re.compile(r"\bnonfinite\b"))
+    tab.click("#item button.pick[data-path='temperature']")
+    tab.click("#item button.pick[data-path='voltage']")
+    expect(tab.locator("#item .legend")).to_contain_text("temperature NaN")
+    expect(tab.locator("#item .legend")).to_contain_text(re.compile(r"voltage 2\d\.\d"))
+    tab.evaluate("location.hash = '#/'")
+    poll_until(lambda: subscriptions(gw, "battery_monitor") == [], 5, message="the subscription deleted")
+
+
+def test_a_hidden_tab_gives_its_stream_back_and_takes_a_new_one_when_shown(gw, page):
+    tab, _ = page
+    value = open_temperature(gw, tab)
+    (first,) = subscriptions(gw, "temp_sensor")
+    # Headless chromium never hides a tab: the page is told it is hidden, as a browser tells it.
+    tab.evaluate("""() => {
+        Object.defineProperty(document, 'hidden', {configurable: true, get: () => true});
+        Object.defineProperty(document, 'visibilityState', {configurable: true, get: () => 'hidden'});
+        document.dispatchEvent(new Event('visibilitychange'));
+    }""")
+    poll_until(lambda: subscriptions(gw, "temp_sensor") == [], 15, message="the hidden tab's stream ended")
+    expect(tab.locator("#item .item-controls .badge")).to_have_text("closed")
+    tab.evaluate("""() => {
+        delete document.hidden;
+        delete document.visibilityState;
+        document.dispatchEvent(new Event('visibilitychange'));
+    }""")
+    expect(tab.locator("#item .item-controls .badge")).to_have_text("live")
+    (again,) = subscriptions(gw, "temp_sensor")
+    assert again["id"] != first["id"]
+    expect(value).not_to_have_text(value.text_content(), timeout=5000)
+
+
+def test_a_stream_that_ends_is_replaced_by_itself(gw, page):
+    tab, _ = page
+    value = open_temperature(gw, tab)
+    (first,) = subscriptions(gw, "temp_sensor")
+    # Another client deletes it (as expiry would end it): the gateway ends the stream at once.
+    r = requests.delete(f"{gw.api}/apps/temp_sensor/cyclic-subscriptions/{first['id']}", timeout=10,
+                        headers={"Authorization": f"Bearer {TOKEN}"})
+    assert r.status_code == 204
+    again = poll_until(lambda: subscriptions(gw, "temp_sensor"), 15, message="a new subscription")
+    assert [s["id"] for s in again] != [first["id"]] and len(again) == 1
+    expect(tab.locator("#item .item-controls .badge")).to_have_text("live")
+    expect(value).not_to_have_text(value.text_content(), timeout=5000)
+
+
+def test_the_subscription_is_renewed_before_it_expires(gw, page):
+    tab, _ = page
+    none_left(gw, "odometry")
+    tab.clock.install()               # the page's timers, under the test's control
+    tab.goto(gw.url + "/ui/#/apps/odometry/data/chassis/odom")
+    sign_in(tab)
+    expect(leaf(tab, "pose.pose.position.x")).to_have_text(NUMBER)
+    (sub,) = subscriptions(gw, "odometry")
+    tab.clock.fast_forward("01:01")   # past half its duration (120 s)
+    renewed = poll_until(lambda: [s for s in subscriptions(gw, "odometry") if s["expires_at"] != sub["expires_at"]],
+                         10, message="the subscription renewed (PUT duration)")
+    assert [s["id"] for s in renewed] == [sub["id"]] and renewed[0]["expires_at"] > sub["expires_at"]
+
+
+def test_the_health_panel_shows_evictions_by_cause(gw, page):
+    topic = "/powertrain/engine/temperature"
+    host = gw.host()
+    poll_until(lambda: gw.get(f"/components/{host}/data{topic}").json()["x-medkit"]["status"] == "data",
+               15, message="the topic pooled")
+    client = gw.rosworker_client()
+    try:
+        assert client.call("evict", {"topic": topic})["evicted"] is True
+    finally:
+        client.close()
+    provider = gw.get("/health").json()["x-medkit-data-provider"]
+    manual = provider["evictions"]["manual"]
+    assert manual >= 1 and provider["evictions_total"] >= manual
+    tab, _ = page
+    tab.goto(gw.url + "/ui/")
+    expect(tab.locator("#health ul.evictions li[data-cause='manual'] b")).to_have_text(str(manual))
+    expect(tab.locator("#health tr[data-key='pool'] td")).to_have_text(re.compile(r"^\d+ / 256$"))
+    expect(tab.locator("#health tr[data-key='cold'] td")).to_have_text(re.compile(r"^\d+ / 4$"))
+
+
+def _prefixed_site(upstream_port: int, listen_port: int) -> str:
+    """The gateway mounted under /robot/ (what "relative URLs only" is for)."""
+    return f"""
+upstream sovd_gateway {{ server 127.0.0.1:{upstream_port} max_fails=0; keepalive 8; }}
+server {{
+    listen 127.0.0.1:{listen_port};
+    location /robot/ {{
+        proxy_pass http://sovd_gateway/;
+        proxy_http_version 1.1;
+        proxy_set_header Connection "";
+        proxy_read_timeout 60s;
+    }}
+}}
+"""
+
+
+def test_the_dashboard_works_under_a_path_prefix_behind_nginx(gw, page, tmp_path_factory):
+    from tests.system.test_nginx import Nginx
+
+    tab, watch = page
+    none_left(gw, "temp_sensor")
+    nginx = Nginx(gw.port, tmp_path_factory.mktemp("nginx-ui"), site=_prefixed_site,
+                  health="/robot/api/v1/health")
+    try:
+        tab.goto(nginx.url + "/robot/")
+        assert tab.url == nginx.url + "/robot/ui/"
+        sign_in(tab)
+        expect(tab.locator("a.topic[data-topic='/powertrain/engine/temperature']").first).to_be_attached()
+        tab.evaluate("location.hash = '#/apps/temp_sensor/data/powertrain/engine/temperature'")
+        value = leaf(tab, "temperature")
+        expect(value).to_have_text(NUMBER)
+        expect(value).not_to_have_text(value.text_content(), timeout=2000)   # the stream through nginx
+        tab.evaluate("location.hash = '#/'")
+        poll_until(lambda: subscriptions(gw, "temp_sensor") == [], 5, message="the subscription deleted")
+        outside = [u for u in watch.requests if not u.startswith(nginx.url + "/robot/")]
+        assert outside == []
+    finally:
+        watch.stop()
+        tab.goto("about:blank")
+        nginx.stop()
+        shutil.rmtree(nginx.prefix, ignore_errors=True)
