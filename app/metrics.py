@@ -17,7 +17,7 @@ Three sources, all in the ``sovd_`` namespace:
   gauges go, its counters stay in the sums.  Without the variable (the Flask
   test client) the values are this process's own.
 - **The ROS worker** (:class:`RosWorkerCollector`): every counter of its
-  ``stats`` answer (``x-medkit-data-provider``, ``x-medkit-subscription-executor``,
+  ``stats`` answer, as ``ipc/counters.py`` declares them (``x-medkit-data-provider``, ``x-medkit-subscription-executor``,
   the cyclic subscriptions, evictions by cause, commands), asked once per
   scrape on the control socket with a deadline of at most ``ipc_timeout``.
   ``sovd_ros_worker_up`` is 0, and nothing else of it is exported, while it
@@ -34,6 +34,8 @@ time: :func:`http` makes the metric objects on first use, in the worker.
 
 from __future__ import annotations
 
+import glob
+import json
 import os
 import time
 from collections.abc import Iterator
@@ -42,6 +44,7 @@ from typing import Any
 from flask import Blueprint, Flask, Response, current_app, request
 
 from common import runfiles
+from ipc import counters
 
 from . import rosclient
 
@@ -67,15 +70,13 @@ class HttpMetrics:
             "sovd_http_request_duration_seconds",
             "Time from the start of a request to its response (an event stream: to its headers), "
             "by route template", ["route"], buckets=BUCKETS, registry=None)
-        self.streams_open = Gauge(
-            "sovd_http_streams_open", "Server-Sent Event streams open now (all HTTP workers)",
-            registry=None, multiprocess_mode="livesum")
-        self.frames_sent = Counter(
-            "sovd_http_stream_frames_sent", "SSE frames written to clients", registry=None)
-        self.frames_dropped = Counter(
-            "sovd_http_stream_frames_dropped",
-            "SSE frames dropped for clients that did not read fast enough (the oldest go first)",
-            registry=None)
+        # The stream counters of x-medkit-streams (ipc/counters.py): /health sums them too.
+        streams = {c.name: c for c in counters.HTTP_COUNTERS}
+        self.streams_open = Gauge(streams["open_streams"].metric, streams["open_streams"].help,
+                                  registry=None, multiprocess_mode="livesum")
+        self.frames_sent = Counter(streams["frames_sent"].metric, streams["frames_sent"].help, registry=None)
+        self.frames_dropped = Counter(streams["frames_dropped"].metric, streams["frames_dropped"].help,
+                                      registry=None)
         self.rate_limited = Counter(
             "sovd_http_rate_limited", "Requests refused with 429 by the rate limiter, by the bucket "
             "that was empty (client or global)", ["scope"], registry=None)
@@ -116,6 +117,53 @@ def multiproc_dir() -> str | None:
     return path if path and os.path.isdir(path) else None
 
 
+# The metric files of the counters and of the live-summed gauges: those of the stream counters.
+STREAM_FILES = ("counter_*.db", "gauge_livesum_*.db")
+# Seconds a worker reuses the sums it read (reading them costs ~0.1 ms for two workers, a tenth
+# of a /health; they were up to a second old when the HTTP workers reported them every second).
+STREAM_TOTALS_TTL = 0.25
+_stream_totals: tuple[float, dict[str, int]] = (float("-inf"), {})
+
+
+def stream_totals() -> dict[str, int]:
+    """``open_streams``, ``frames_sent``, ``frames_dropped`` of every HTTP worker (``/health``).
+
+    The sums a scrape makes (open streams of the live workers, frames of every worker since the
+    gateway started), read from the multiprocess directory; without it (the Flask test client)
+    this process's own.  Only the entries of these three metrics are decoded (the files also
+    hold every request counter), and the sums are kept for :data:`STREAM_TOTALS_TTL`.
+    """
+    global _stream_totals
+    names = {c.metric: c.name for c in counters.HTTP_COUNTERS}
+    totals = dict.fromkeys(names.values(), 0)
+    path = multiproc_dir()
+    if path is None:
+        for family in http().families():
+            for sample in family.samples:
+                if family.name in names and sample.name in (family.name, family.name + "_total"):
+                    totals[names[family.name]] += int(sample.value)
+        return totals
+    now = time.monotonic()
+    if now - _stream_totals[0] < STREAM_TOTALS_TTL:
+        return dict(_stream_totals[1])
+    from prometheus_client.mmap_dict import MmapedDict
+
+    prefixes = tuple(f'["{metric}", "{metric}' for metric in names)  # a key: [metric, sample, labels, help]
+    for pattern in STREAM_FILES:
+        for file in glob.glob(os.path.join(path, pattern)):
+            try:
+                entries = MmapedDict.read_all_values_from_file(file)
+            except FileNotFoundError:
+                continue  # a live gauge's file, removed as its worker was marked dead
+            for key, value, _timestamp, _pos in entries:
+                if key.startswith(prefixes):
+                    metric, sample = json.loads(key)[:2]
+                    if sample in (metric, metric + "_total"):  # not _created
+                        totals[names[metric]] += int(value)
+    _stream_totals = (now, totals)
+    return dict(totals)
+
+
 # ---- request hooks ------------------------------------------------------------------------------
 T0 = "sovd.metrics.t0"  # in the request's environ: when it began
 
@@ -141,65 +189,9 @@ def rate_limited(scope: str) -> None:
 
 
 # ---- the ROS worker, at scrape time -------------------------------------------------------------
-# (section, key, metric name, type, help, scale); counters get "_total" from prometheus_client.
-ROS_FIELDS: tuple[tuple[str, str, str, str, str, float], ...] = (
-    ("data_provider", "pool_size", "sovd_ros_pool_size", "gauge", "Topics pooled (subscribed) now", 1),
-    ("data_provider", "pool_cap", "sovd_ros_pool_cap", "gauge", "Most topics the pool holds (max_pool_size)", 1),
-    ("data_provider", "pool_hits", "sovd_ros_pool_hits", "counter", "Reads of a topic already pooled", 1),
-    ("data_provider", "pool_misses", "sovd_ros_pool_misses", "counter",
-     "Reads that had to subscribe to the topic first", 1),
-    ("data_provider", "evictions_total", "sovd_ros_pool_evictions_all", "counter",
-     "Topics dropped from the pool, any cause (by cause: sovd_ros_pool_evictions_total)", 1),
-    ("data_provider", "type_change_events", "sovd_ros_type_changes", "counter",
-     "Pooled topics dropped because their message type changed", 1),
-    ("data_provider", "graph_events_received", "sovd_ros_graph_changes", "counter",
-     "Changes of the ROS graph seen", 1),
-    ("data_provider", "concurrent_cold_waits", "sovd_ros_cold_waits", "gauge",
-     "Readers waiting for a cold topic's first message now", 1),
-    ("data_provider", "cold_wait_cap", "sovd_ros_cold_wait_cap", "gauge",
-     "Readers allowed to wait on cold topics at once (0: no cap)", 1),
-    ("data_provider", "unsupported_type_count", "sovd_ros_unsupported_type_reads", "counter",
-     "Reads of topics whose message type is not installed", 1),
-    ("data_provider", "undecodable_messages", "sovd_ros_undecodable_messages", "counter",
-     "Messages that did not decode as their type", 1),
-    ("data_provider", "pool_bytes", "sovd_ros_pool_bytes", "gauge", "Bytes of kept messages (raw and JSON)", 1),
-    ("data_provider", "pool_bytes_cap", "sovd_ros_pool_bytes_cap", "gauge", "Byte budget of the pool", 1),
-    ("executor", "degraded", "sovd_ros_degraded", "gauge",
-     "1 while a ROS task has run longer than the watchdog threshold", 1),
-    ("executor", "queue_depth", "sovd_ros_queue_depth", "gauge", "Commands queued for the ROS thread now", 1),
-    ("executor", "queue_max_depth_observed", "sovd_ros_queue_depth_max", "gauge",
-     "Deepest the command queue has been", 1),
-    ("executor", "queue_dropped", "sovd_ros_queue_rejected", "counter",
-     "Commands refused because the queue was full (backpressure)", 1),
-    ("executor", "last_task_latency_us", "sovd_ros_last_task_seconds", "gauge",
-     "Time the last ROS task took", 1e-6),
-    ("executor", "max_task_latency_us", "sovd_ros_max_task_seconds", "gauge", "Longest ROS task so far", 1e-6),
-    ("executor", "current_task_age_ms", "sovd_ros_current_task_seconds", "gauge",
-     "Time the running ROS task has taken so far (0 while idle)", 1e-3),
-    ("executor", "watchdog_trips", "sovd_ros_watchdog_trips", "counter",
-     "Times a ROS task ran past the watchdog threshold", 1),
-    ("executor", "loop_errors", "sovd_ros_loop_errors", "counter",
-     "Failures contained on the ROS thread outside any request", 1),
-    ("streams", "active_subscriptions", "sovd_ros_subscriptions", "gauge", "Cyclic subscriptions held now", 1),
-    ("streams", "max_subscriptions", "sovd_ros_subscriptions_cap", "gauge",
-     "Most cyclic subscriptions held at once (max_subscriptions)", 1),
-    ("streams", "subscriptions_created", "sovd_ros_subscriptions_created", "counter",
-     "Cyclic subscriptions created", 1),
-    ("streams", "subscriptions_expired", "sovd_ros_subscriptions_expired", "counter",
-     "Cyclic subscriptions that ran out", 1),
-    ("streams", "frames_published", "sovd_ros_stream_frames_published", "counter",
-     "Stream frames the ROS worker sent to the HTTP workers", 1),
-    ("details", "publishers", "sovd_ros_publishers", "gauge", "Pooled publishers (PUT) now", 1),
-    ("details", "publishes_total", "sovd_ros_publishes", "counter", "Messages published (PUT)", 1),
-    ("details", "publishers_expired", "sovd_ros_publishers_expired", "counter",
-     "Pooled publishers dropped after being unused", 1),
-    ("details", "publishes_waiting", "sovd_ros_publishes_waiting", "gauge",
-     "Publishes waiting for their subscribers to match now", 1),
-    ("details", "pool_json_drops", "sovd_ros_pool_json_drops", "counter",
-     "Cached JSON texts dropped for the byte budget", 1),
-    ("details", "ipc_dropped_frames", "sovd_ros_ipc_dropped_frames", "counter",
-     "IPC frames dropped because they were not requests", 1),
-)
+# Its counters exported one metric each (declared in ipc/counters.py; "_total" is prometheus_client's).
+ROS_FIELDS = tuple(c for c in counters.ROS_COUNTERS
+                   if c.metric and c.kind in (counters.COUNTER, counters.GAUGE, counters.FLAG))
 
 
 def _number(value: Any) -> float | None:
@@ -226,49 +218,48 @@ class RosWorkerCollector:
                                 value=1.0 if alive else 0.0)
         if not alive or not isinstance(stats, dict):
             return
-        for section, key, name, kind, help_text, scale in ROS_FIELDS:
-            part = stats.get(section)
-            value = _number(part.get(key)) if isinstance(part, dict) else None
-            if value is None:
+        families: dict[str, Any] = {}  # a metric made of several counters: one family, a sample each
+        for c in ROS_FIELDS:
+            part = stats.get(c.section)
+            value = _number(part.get(c.name)) if isinstance(part, dict) else None
+            family = CounterMetricFamily if c.kind == counters.COUNTER else GaugeMetricFamily
+            if c.label is None:
+                if value is not None:
+                    yield family(c.metric, c.help, value=value * c.scale)
                 continue
-            family = CounterMetricFamily if kind == "counter" else GaugeMetricFamily
-            yield family(name, help_text, value=value * scale)
-        executor = stats.get("executor") if isinstance(stats.get("executor"), dict) else {}
-        tasks = CounterMetricFamily("sovd_ros_tasks", "ROS tasks run, by outcome", labels=["outcome"])
-        for outcome, key in (("completed", "tasks_completed"), ("failed", "tasks_failed")):
-            value = _number(executor.get(key))
+            label, label_value = c.label.split("=")
+            grouped = families.get(c.metric)
+            if grouped is None:
+                grouped = families[c.metric] = family(c.metric, counters.FAMILY_HELP[c.metric], labels=[label])
             if value is not None:
-                tasks.add_metric([outcome], value)
-        yield tasks
+                grouped.add_metric([label_value], value * c.scale)
+        yield from families.values()
         details = stats.get("details") if isinstance(stats.get("details"), dict) else {}
         yield from self._labelled(details)
 
     def _labelled(self, details: dict) -> Iterator[Any]:
+        """The details' maps: one counter family per map (two for a command's count and time)."""
         from prometheus_client.core import CounterMetricFamily
 
-        evictions = CounterMetricFamily("sovd_ros_pool_evictions", "Topics dropped from the pool, by cause "
-                                        "(graph, type_change, lru, idle, qos_rebuild, manual, shutdown, bytes)",
-                                        labels=["cause"])
-        for cause, value in sorted((details.get("evictions") or {}).items()):
-            if _number(value) is not None:
-                evictions.add_metric([str(cause)], _number(value))
-        yield evictions
-        count = CounterMetricFamily("sovd_ros_commands", "Queued commands run on the ROS thread, by command",
-                                    labels=["command"])
-        seconds = CounterMetricFamily("sovd_ros_command_seconds", "Time the ROS thread spent on queued "
-                                      "commands, by command", labels=["command"])
-        for command, totals in sorted((details.get("commands") or {}).items()):
-            if isinstance(totals, dict) and _number(totals.get("count")) is not None:
-                count.add_metric([str(command)], _number(totals["count"]))
-                seconds.add_metric([str(command)], (_number(totals.get("time_us")) or 0.0) / 1e6)
-        yield count
-        yield seconds
-        ticks = CounterMetricFamily("sovd_ros_stream_ticks", "Rounds of the stream timers, by interval",
-                                    labels=["interval"])
-        for interval, value in sorted((details.get("ticks") or {}).items()):
-            if _number(value) is not None:
-                ticks.add_metric([str(interval)], _number(value))
-        yield ticks
+        for c in counters.section("details", counters.ROS):
+            values = details.get(c.name)
+            values = values if isinstance(values, dict) else {}
+            if c.kind == counters.BY:
+                family = CounterMetricFamily(c.metric, c.help, labels=[c.label])
+                for key, value in sorted(values.items()):
+                    if _number(value) is not None:
+                        family.add_metric([str(key)], _number(value))
+                yield family
+            elif c.kind == counters.TIMINGS:
+                seconds_name, seconds_help = counters.TIMINGS_SECONDS[c.metric]
+                count = CounterMetricFamily(c.metric, c.help, labels=[c.label])
+                seconds = CounterMetricFamily(seconds_name, seconds_help, labels=[c.label])
+                for key, totals in sorted(values.items()):
+                    if isinstance(totals, dict) and _number(totals.get("count")) is not None:
+                        count.add_metric([str(key)], _number(totals["count"]))
+                        seconds.add_metric([str(key)], (_number(totals.get("time_us")) or 0.0) / 1e6)
+                yield count
+                yield seconds
 
 
 # ---- the supervisor ------------------------------------------------------------------------------

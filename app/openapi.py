@@ -20,6 +20,8 @@ import re
 from functools import lru_cache
 from typing import Any
 
+from ipc import counters
+
 from .entities import API_BASE, COLLECTIONS, KINDS, PARAM_NAMES, RELATIONS
 from .routes import unimplemented
 
@@ -42,13 +44,16 @@ def _obj(required: list[str], **props: Any) -> dict[str, Any]:
 
 
 INTERVAL = {"enum": ["fast", "normal", "slow"], "description": "fast 50 ms, normal 200 ms, slow 500 ms"}
-STREAM_KEYS = ("active_subscriptions", "max_subscriptions", "open_streams", "frames_sent", "frames_dropped",
-               "frames_published", "subscriptions_created", "subscriptions_expired")
 
 
 def _title(collection: str) -> str:
     """``Component`` for ``components``: medkit's schema-name stem."""
     return KINDS[collection][1]
+
+
+def _counter_props(section: str) -> dict[str, Any]:
+    """The properties of a /health section: its declared counters (ipc/counters.py), typed."""
+    return {c.name: {"type": "boolean"} if c.kind == counters.FLAG else INT for c in counters.section(section)}
 
 
 LINKS = {"type": "object", "required": ["self"], "properties": {"self": STR},
@@ -193,30 +198,17 @@ SCHEMAS: dict[str, Any] = {
                                "its tasks ran past the watchdog threshold"},
         timestamp=INT, discovery=_obj(["mode", "strategy"], mode=STR, strategy=STR),
         X_medkit__data__provider=_obj(
-            ["pool_size", "pool_cap", "pool_hits", "pool_misses", "evictions_total", "type_change_events",
-             "graph_events_received", "concurrent_cold_waits", "cold_wait_cap", "unsupported_type_count",
-             "undecodable_messages", "pool_bytes", "pool_bytes_cap", "evictions"],
-            **{k: INT for k in ("pool_size", "pool_cap", "pool_hits", "pool_misses", "evictions_total",
-                                "type_change_events", "graph_events_received", "concurrent_cold_waits",
-                                "cold_wait_cap", "unsupported_type_count", "undecodable_messages",
-                                "pool_bytes", "pool_bytes_cap")},
+            [*counters.health_keys("data_provider"), "evictions"], **_counter_props("data_provider"),
             evictions={"type": "object", "additionalProperties": INT,
                        "description": "evictions_total by cause (graph, type_change, lru, idle, qos_rebuild, "
                                       "manual, shutdown, bytes); empty until the ROS worker first answers"}),
         X_medkit__subscription__executor={
-            **_obj(["worker_alive", "degraded", "queue_depth", "queue_max_depth_observed", "queue_dropped",
-                    "tasks_completed", "tasks_failed", "last_task_latency_us", "max_task_latency_us",
-                    "current_task_age_ms", "watchdog_trips", "graph_events_received", "loop_errors"],
-                   worker_alive={"type": "boolean"}, degraded={"type": "boolean"},
-                   **{k: INT for k in ("queue_depth", "queue_max_depth_observed", "queue_dropped",
-                                       "tasks_completed", "tasks_failed", "last_task_latency_us",
-                                       "max_task_latency_us", "current_task_age_ms", "watchdog_trips",
-                                       "graph_events_received", "loop_errors")}),
+            **_obj(list(counters.health_keys("executor")), **_counter_props("executor")),
             "description": "While the ROS worker is down: worker_alive false, the last counters received "
                            "(or zeros)"},
-        X_medkit__streams={**_obj(list(STREAM_KEYS), **{k: INT for k in STREAM_KEYS}),
+        X_medkit__streams={**_obj(list(counters.health_keys("streams")), **_counter_props("streams")),
                            "description": "cyclic subscriptions held, and the SSE streams of every HTTP worker "
-                                          "(reported every second)"},
+                                          "(summed at each request)"},
     ),
     "RootOverview": _obj(
         ["name", "version", "api_base", "endpoints", "capabilities"], name=STR,

@@ -25,9 +25,11 @@ no thread per stream.
 - The *ticker* greenlet stands in while the ROS worker is down: every stream
   gets an ``error`` frame per interval (the error a GET would answer), so the
   stream stays open and visibly degraded until data frames come back.  It
-  also reports this process's counters to the ROS worker every second (the
-  ``x-medkit-streams`` section of ``/health`` sums them) and ends every
-  stream with a last ``error`` frame when the HTTP worker shuts down.
+  also ends every stream with a last ``error`` frame when the HTTP worker
+  shuts down.
+- Open streams, frames sent and frames dropped are Prometheus metrics
+  (``app/metrics.py``): ``/metrics`` and the ``x-medkit-streams`` section of
+  ``/health`` sum them over every HTTP worker.
 
 Before fork / after fork: nothing here runs at import time; the hub, its
 socket and its greenlets are made by :func:`get` in the worker process.
@@ -70,8 +72,7 @@ STREAM_SNDBUF = 128 * 1024
 KEEPALIVE = 15.0           # seconds of silence before a ":" comment line
 TICK = 0.05                # seconds between the ticker's rounds
 HEARTBEAT_LOST = 3.0       # seconds without a heartbeat before the ROS worker counts as gone
-REPORT_EVERY = 1.0
-REPORT_TIMEOUT = 0.5
+LOOKUP_TIMEOUT = 0.5       # seconds a silent stream's sub_get may take (a type_info fetch: 4 times this)
 SILENT_CHECK = 2.0         # seconds without frames (worker up) before a stream's subscription is looked up
 EXPIRY_SLACK = 1.0         # seconds an expiry from sub_get may differ from a stream's before it is applied
 SILENT_SCAN = 0.5          # seconds between two scans of every stream for silence (a scan is O(streams))
@@ -196,26 +197,23 @@ class Stream:
 
 
 class StreamHub:
-    def __init__(self, runtime_dir: str, report: Callable[[dict[str, int]], None],
-                 lookup: Callable[[Stream], dict[str, Any]], stopping: Callable[[], bool] = lambda: False,
+    def __init__(self, runtime_dir: str, lookup: Callable[[Stream], dict[str, Any]],
+                 stopping: Callable[[], bool] = lambda: False,
                  send_timeout: float = 30.0):
         self.runtime_dir = runtime_dir
         self.send_timeout = send_timeout
-        self._report = report                  # sends counters to the ROS worker (may raise IpcError)
         self._lookup = lookup                  # a stream's subscription from the ROS worker (IpcError)
         self._stopping = stopping              # true once this HTTP worker is shutting down
         self.by_key: dict[bytes, set[Stream]] = {}
         self.by_id: dict[str, set[Stream]] = {}
-        self.counters = {"open_streams": 0, "frames_sent": 0, "frames_dropped": 0}
-        self.prom = metrics.http()             # the same counts for Prometheus (app/metrics.py)
+        self.counters = {"open_streams": 0, "frames_sent": 0, "frames_dropped": 0}  # this hub's own
+        self.prom = metrics.http()             # the same, as /metrics and /health sum them (app/metrics.py)
         self.connected = False
         self.heartbeat = 0.0
         self._ctx: zmq.Context | None = None
         self._sock = None
         self._monitor = None
         self._greenlets: list[gevent.Greenlet] = []
-        self._reported: dict[str, int] | None = None
-        self._next_report = 0.0
         self._next_scan = 0.0
         self._last_payload: dict[tuple[bytes, str], tuple[float, bytes]] = {}
         # x-medkit.type_info of a frame, as a GET has it: ``type_info`` answers from the process's
@@ -402,9 +400,6 @@ class StreamHub:
                 elif self.by_id and now >= self._next_scan:
                     self._next_scan = now + SILENT_SCAN
                     self._check_silent(now)
-                if now >= self._next_report:
-                    self._next_report = now + REPORT_EVERY
-                    self._send_report()
             except gevent.GreenletExit:
                 raise
             except Exception:
@@ -439,16 +434,6 @@ class StreamHub:
                      "not received on the events channel)", stream.id, sub["interval"])
             self._apply(stream, sub["key"], sub["interval"], expires_in)
 
-    def _send_report(self) -> None:
-        counters = dict(self.counters)
-        if counters == self._reported:
-            return
-        try:
-            self._report({**counters, "pid": os.getpid()})
-            self._reported = counters
-        except IpcError:
-            pass  # the ROS worker is away; the next round tries again
-
 
 EXTENSION = "sovd_streams"
 
@@ -466,7 +451,7 @@ class _PerProcess:
 
     def get(self) -> StreamHub:
         if self.pid != os.getpid():
-            self.hub = StreamHub(self.runtime_dir, self._report, self._lookup, _worker_stopping,
+            self.hub = StreamHub(self.runtime_dir, self._lookup, _worker_stopping,
                                  self.send_timeout)
             self.hub.type_info = self._type_info
             self.hub.warm = self._warm
@@ -486,7 +471,7 @@ class _PerProcess:
 
     def _fetch(self, type_name: str) -> None:
         try:
-            self.ros.type_info(type_name, timeout=REPORT_TIMEOUT * 4)
+            self.ros.type_info(type_name, timeout=LOOKUP_TIMEOUT * 4)
         except IpcError as exc:
             log.info("type_info %s: %s", type_name, exc.message)
         finally:
@@ -502,12 +487,9 @@ class _PerProcess:
         except IpcError as exc:
             log.info("type_info for %s: %s", topic, exc.message)
 
-    def _report(self, counters: dict[str, int]) -> None:
-        self.ros.call("streams_report", counters, timeout=REPORT_TIMEOUT)
-
     def _lookup(self, stream: Stream) -> dict[str, Any]:
         return self.ros.call("sub_get", {"collection": stream.collection, "entity_id": stream.entity_id,
-                                  "id": stream.id}, timeout=REPORT_TIMEOUT)
+                                  "id": stream.id}, timeout=LOOKUP_TIMEOUT)
 
     def close(self) -> None:
         if self.hub is not None and self.pid == os.getpid():

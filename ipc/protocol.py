@@ -32,7 +32,7 @@ REQUEST_ID = re.compile(r"^[A-Za-z0-9._-]{1,128}$")
 
 COMMANDS = (
     "ping", "stats", "graph", "sample", "subscribe", "evict", "publish", "type_info", "pool",
-    "sub_create", "sub_list", "sub_get", "sub_update", "sub_delete", "streams_report",
+    "sub_create", "sub_list", "sub_get", "sub_update", "sub_delete",
     "debug_sleep",
 )
 # Commands answered from counters by the control thread, without queueing behind ROS work;

@@ -90,7 +90,6 @@ class Commands:
             "graph": self.graph_cmd, "publish": self.publish, "type_info": self.type_info,
             "pool": self.pool_cmd, "sub_create": self.sub_create, "sub_list": self.sub_list,
             "sub_get": self.sub_get, "sub_update": self.sub_update, "sub_delete": self.sub_delete,
-            "streams_report": self.streams_report,
         }
         if debug:
             self.handlers["debug_sleep"] = self.debug_sleep
@@ -187,15 +186,6 @@ class Commands:
     def sub_delete(self, task: Task) -> None:
         self.streams.delete(*self._entity(task.args), _string(task.args, "id", limit=64))
         self.streams.when_saved(lambda: task.reply({}))
-
-    def streams_report(self, task: Task) -> None:
-        pid = task.args.get("pid")
-        counters = {k: task.args.get(k) for k in ("open_streams", "frames_sent", "frames_dropped")}
-        if isinstance(pid, bool) or not isinstance(pid, int) or not all(
-                isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in counters.values()):
-            raise IpcError("bad-request", "streams_report: expected pid and non-negative counters")
-        self.streams.report(pid, counters)
-        task.reply({})
 
     def debug_sleep(self, task: Task) -> None:
         time.sleep(_number(task.args, "seconds", 1.0, 0, 600))

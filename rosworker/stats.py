@@ -1,4 +1,7 @@
-"""The ROS worker's counters: the two vendor sections of ``/health``.
+"""The ROS worker's counters: its ``stats`` answer, whose sections ``/health`` shows.
+
+Which counters there are, their kinds and sections, is declared once in
+``ipc/counters.py``; this class holds the values of those the ROS worker counts.
 
 Counters are plain attributes written by the ROS thread (and, for the queue,
 by the IPC thread under the executor's lock).  Reading them never waits
@@ -11,59 +14,32 @@ task that is running now.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+
+from ipc import counters
+
+# The stats answer, section by section, in the declared order (ipc/counters.py): the keys the
+# ROS worker counts, and how each is read.  Two are computed at read time; the rest are attributes.
+_COMPUTED = ("worker_alive", "current_task_age_ms")
+_PLAN = tuple((name, tuple((c.name, c.kind) for c in counters.section(name, counters.ROS)))
+              for name in counters.SECTIONS)
 
 
-@dataclass
 class Stats:
-    pool_cap: int
-    cold_wait_cap: int
-    watchdog_threshold_ms: int
-    # x-medkit-data-provider
-    pool_size: int = 0
-    pool_hits: int = 0
-    pool_misses: int = 0
-    evictions_total: int = 0
-    type_change_events: int = 0
-    graph_events_received: int = 0
-    concurrent_cold_waits: int = 0
-    unsupported_type_count: int = 0
-    undecodable_messages: int = 0
-    pool_bytes: int = 0
-    pool_bytes_cap: int = 0
-    # x-medkit-subscription-executor
-    degraded: bool = False
-    queue_depth: int = 0
-    queue_max_depth_observed: int = 0
-    queue_dropped: int = 0
-    tasks_completed: int = 0
-    tasks_failed: int = 0
-    last_task_latency_us: int = 0
-    max_task_latency_us: int = 0
-    watchdog_trips: int = 0
-    loop_errors: int = 0
-    # extra detail, reported under "x-medkit-details"
-    evictions: dict = field(default_factory=lambda: {
-        "graph": 0, "type_change": 0, "lru": 0, "idle": 0, "qos_rebuild": 0, "manual": 0, "shutdown": 0,
-        "bytes": 0,
-    })
-    pool_json_drops: int = 0
-    publishers_expired: int = 0
-    publishes_waiting: int = 0
-    publishers: int = 0
-    publishes_total: int = 0
-    ipc_dropped_frames: int = 0
-    # queued commands: name -> [count, total µs on the ROS thread] (the names are a fixed set)
-    commands: dict = field(default_factory=dict)
-    current_task_started: float = 0.0  # monotonic; 0 while idle
-    # cyclic subscriptions (rosworker/streams.py) and the HTTP workers' streams (their reports)
-    max_subscriptions: int = 0
-    active_subscriptions: int = 0
-    subscriptions_created: int = 0
-    subscriptions_expired: int = 0
-    frames_published: int = 0
-    ticks: dict = field(default_factory=dict)
-    streams: dict = field(default_factory=lambda: {"open_streams": 0, "frames_sent": 0, "frames_dropped": 0})
+    """The ROS worker's counters: one attribute per counter of ``ipc/counters.py`` (zero at start)."""
+
+    def __init__(self, pool_cap: int, cold_wait_cap: int, watchdog_threshold_ms: int):
+        for c in counters.ROS_COUNTERS:
+            if c.kind in (counters.COUNTER, counters.GAUGE, counters.FLAG) and c.name not in _COMPUTED:
+                setattr(self, c.name, c.zero)
+        self.pool_cap = pool_cap
+        self.cold_wait_cap = cold_wait_cap
+        self.watchdog_threshold_ms = watchdog_threshold_ms
+        # details by cause; "x-medkit-data-provider" of /health shows them too
+        self.evictions: dict[str, int] = dict.fromkeys(counters.EVICTION_CAUSES, 0)
+        # queued commands: name -> [count, total µs on the ROS thread] (the names are a fixed set)
+        self.commands: dict[str, list[int]] = {}
+        self.ticks: dict[str, int] = {}  # stream timer rounds by interval
+        self.current_task_started = 0.0  # monotonic; 0 while idle
 
     def task_started(self) -> float:
         now = time.monotonic()
@@ -112,54 +88,19 @@ class Stats:
             self.watchdog_trips += 1
 
     def snapshot(self) -> dict:
-        return {
-            "data_provider": {
-                "pool_size": self.pool_size,
-                "pool_cap": self.pool_cap,
-                "pool_hits": self.pool_hits,
-                "pool_misses": self.pool_misses,
-                "evictions_total": self.evictions_total,
-                "type_change_events": self.type_change_events,
-                "graph_events_received": self.graph_events_received,
-                "concurrent_cold_waits": self.concurrent_cold_waits,
-                "cold_wait_cap": self.cold_wait_cap,
-                "unsupported_type_count": self.unsupported_type_count,
-                "undecodable_messages": self.undecodable_messages,
-                "pool_bytes": self.pool_bytes,
-                "pool_bytes_cap": self.pool_bytes_cap,
-            },
-            "executor": {
-                "worker_alive": True,
-                "degraded": self.degraded,
-                "queue_depth": self.queue_depth,
-                "queue_max_depth_observed": self.queue_max_depth_observed,
-                "queue_dropped": self.queue_dropped,
-                "tasks_completed": self.tasks_completed,
-                "tasks_failed": self.tasks_failed,
-                "last_task_latency_us": self.last_task_latency_us,
-                "max_task_latency_us": self.max_task_latency_us,
-                "current_task_age_ms": self.current_task_age_ms(),
-                "watchdog_trips": self.watchdog_trips,
-                "graph_events_received": self.graph_events_received,
-                "loop_errors": self.loop_errors,
-            },
-            "streams": {
-                "active_subscriptions": self.active_subscriptions,
-                "max_subscriptions": self.max_subscriptions,
-                **self.streams,
-                "frames_published": self.frames_published,
-                "subscriptions_created": self.subscriptions_created,
-                "subscriptions_expired": self.subscriptions_expired,
-            },
-            "details": {
-                "evictions": dict(self.evictions),
-                "publishers": self.publishers,
-                "publishes_total": self.publishes_total,
-                "publishers_expired": self.publishers_expired,
-                "publishes_waiting": self.publishes_waiting,
-                "pool_json_drops": self.pool_json_drops,
-                "ipc_dropped_frames": self.ipc_dropped_frames,
-                "commands": {name: {"count": n, "time_us": t} for name, (n, t) in list(self.commands.items())},
-                "ticks": dict(self.ticks),
-            },
-        }
+        """The ``stats`` answer (the control thread: reads attributes, never waits)."""
+        answer: dict = {}
+        for name, keys in _PLAN:
+            part = answer[name] = {}
+            for key, kind in keys:
+                if kind == counters.BY:
+                    part[key] = dict(getattr(self, key))
+                elif kind == counters.TIMINGS:  # a dict replaced, never resized, by the ROS thread
+                    part[key] = {n: {"count": c, "time_us": t} for n, (c, t) in list(getattr(self, key).items())}
+                elif key == "worker_alive":
+                    part[key] = True
+                elif key == "current_task_age_ms":
+                    part[key] = self.current_task_age_ms()
+                else:
+                    part[key] = getattr(self, key)
+        return answer

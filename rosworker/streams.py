@@ -77,8 +77,6 @@ from .stats import Stats
 log = logging.getLogger("sovd.rosworker.streams")
 
 HEARTBEAT_EVERY = 1.0
-REPORT_TTL = 5.0    # seconds an HTTP worker's stream counters count as current
-REPORTERS_CAP = 256
 SAVE_WAIT = 1.0     # seconds a changed registry waits for the writer before it is answered anyway
 
 
@@ -158,7 +156,6 @@ class StreamRegistry:
         self.watches: dict[str, dict[tuple[str, str], _Watch]] = {i: {} for i in events.INTERVALS}
         self._expiry: dict[str, Timer] = {}
         self._pub: zmq.Socket | None = None
-        self._reports: dict[int, tuple[float, dict[str, int]]] = {}
         # save(): after every change of the registry, hands the records to the restart state's
         # writer; save(then) also runs ``then`` once they are written (see when_saved).
         # Without it (a registry that is not kept), ``then`` runs at once.
@@ -276,14 +273,6 @@ class StreamRegistry:
 
     def delete(self, collection: str, entity_id: str, sub_id: str) -> None:
         self._remove(self.get(collection, entity_id, sub_id), "deleted")
-
-    def report(self, pid: int, counters: dict[str, int]) -> None:
-        """An HTTP worker's stream counters (open, frames sent, frames dropped)."""
-        self._reports[pid] = (time.monotonic(), counters)
-        if len(self._reports) > REPORTERS_CAP:
-            oldest = min(self._reports, key=lambda p: self._reports[p][0])
-            del self._reports[oldest]
-        self._sum_reports()
 
     # ---- registry -------------------------------------------------------------------------
     def _held_by(self, client: str) -> int:
@@ -416,7 +405,6 @@ class StreamRegistry:
     def _heartbeat(self) -> None:
         self.executor.call_later(HEARTBEAT_EVERY, self._heartbeat)
         self._send([events.HEARTBEAT_KEY, protocol.pack({"pid": os.getpid(), "t": time.time_ns()})])
-        self._sum_reports()
 
     def _send(self, frames: list[bytes]) -> None:
         if self._pub is None:
@@ -425,13 +413,3 @@ class StreamRegistry:
             self._pub.send_multipart(frames, zmq.NOBLOCK, copy=False)
         except zmq.ZMQError:
             pass  # PUB never blocks: a subscriber past its high-water mark misses this frame
-
-    def _sum_reports(self) -> None:
-        now = time.monotonic()
-        totals = {"open_streams": 0, "frames_sent": 0, "frames_dropped": 0}
-        for seen, counters in self._reports.values():
-            if now - seen <= REPORT_TTL:
-                totals["open_streams"] += counters.get("open_streams", 0)
-            totals["frames_sent"] += counters.get("frames_sent", 0)
-            totals["frames_dropped"] += counters.get("frames_dropped", 0)
-        self.stats.streams = totals

@@ -9,7 +9,9 @@ from typing import Any
 
 from flask import Blueprint
 
-from .. import openapi, rosclient
+from ipc import counters
+
+from .. import metrics, openapi, rosclient
 from ..entities import API_BASE
 from ..errors import ApiError
 from . import unimplemented
@@ -23,24 +25,6 @@ SOVD_VERSION = openapi.SOVD_VERSION
 # medkit's capabilities that this gateway does not serve and whose routes are not in
 # unimplemented.ROUTES (later issues implement them).
 NOT_SERVED = ("operations", "async_actions", "configurations", "faults", "logs", "triggers")
-
-# The contract's counters, in its order: what /health shows while the ROS worker is down
-# and no answer was ever received.
-DATA_PROVIDER_KEYS = (
-    "pool_size", "pool_cap", "pool_hits", "pool_misses", "evictions_total", "type_change_events",
-    "graph_events_received", "concurrent_cold_waits", "cold_wait_cap", "unsupported_type_count",
-    "undecodable_messages", "pool_bytes", "pool_bytes_cap",
-)
-STREAMS_KEYS = (
-    "active_subscriptions", "max_subscriptions", "open_streams", "frames_sent", "frames_dropped",
-    "frames_published", "subscriptions_created", "subscriptions_expired",
-)
-EXECUTOR_KEYS = (
-    "worker_alive", "degraded", "queue_depth", "queue_max_depth_observed", "queue_dropped",
-    "tasks_completed", "tasks_failed", "last_task_latency_us", "max_task_latency_us",
-    "current_task_age_ms", "watchdog_trips", "graph_events_received", "loop_errors",
-)
-
 
 @functools.cache  # reading package metadata costs ~0.4 ms; it cannot change in a running process
 def package_version() -> str:
@@ -147,14 +131,12 @@ def health():
 
 
 def _sections(stats: dict[str, Any] | None) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
+    """/health's three sections: the declared counters (ipc/counters.py), zero or the settings they
+    show until the ROS worker first answers, then its last answer; the HTTP workers' stream
+    counters are summed from their metrics (app/metrics.py), whatever the ROS worker does."""
     cfg = config()
-    provider: dict[str, Any] = {k: 0 for k in DATA_PROVIDER_KEYS}
-    provider.update(pool_cap=cfg.max_pool_size, cold_wait_cap=cfg.cold_wait_cap,
-                    pool_bytes_cap=cfg.max_pool_bytes)
-    executor: dict[str, Any] = {k: 0 for k in EXECUTOR_KEYS}
-    executor.update(worker_alive=False, degraded=False)
-    streams: dict[str, Any] = {k: 0 for k in STREAMS_KEYS}
-    streams["max_subscriptions"] = cfg.max_subscriptions
+    provider, executor, streams = (counters.health_defaults(name, cfg)
+                                   for name in ("data_provider", "executor", "streams"))
     provider["evictions"] = {}  # evictions_total by cause, as the ROS worker counts them
     if stats:
         for section, name in ((provider, "data_provider"), (executor, "executor"), (streams, "streams")):
@@ -163,4 +145,5 @@ def _sections(stats: dict[str, Any] | None) -> tuple[dict[str, Any], dict[str, A
         details = stats.get("details")
         if isinstance(details, dict) and isinstance(details.get("evictions"), dict):
             provider["evictions"] = dict(details["evictions"])
+    streams.update(metrics.stream_totals())
     return provider, executor, streams

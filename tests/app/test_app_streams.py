@@ -23,6 +23,7 @@ import pytest
 import requests
 
 from app.streams import SILENT_CHECK, STREAM_BUFFER_BYTES, STREAM_SNDBUF, Stream, StreamHub
+from ipc.errors import IpcError
 from tests.support.gateway import Gateway
 from tests.support.metrics import families, value
 from tests.support.procs import RosNode, poll_until
@@ -322,7 +323,7 @@ def test_what_a_reader_that_never_reads_holds_in_the_kernel_is_bounded(gw):
 def test_a_streams_buffer_is_bounded_in_bytes_as_well_as_frames():
     """The hub's side of a slow reader, alone (no socket: the hub is not started): four small
     frames are kept, but of megabyte frames only the newest."""
-    hub = StreamHub("/nonexistent", report=lambda counters: None, lookup=lambda stream: {})
+    hub = StreamHub("/nonexistent", lookup=lambda stream: {})
     sub = {"id": "sub_0123456789abcdef", "collection": "apps", "entity_id": APP, "topic": TOPIC,
            "key": b"d|fast|array|/s/temperature|", "interval": "fast", "expires_at_ns": time.time_ns() + 10**10}
     small, large = Stream(hub, sub), Stream(hub, sub)
@@ -367,6 +368,55 @@ def test_two_hundred_streams_at_once(gw):
         for s in streams:
             s.close()
         requests.delete(gw.api + f"{BASE}/{sub['id']}", timeout=10)
+
+
+def _holder(gw, stream: EventStream) -> int | None:
+    """The pid of the HTTP worker that serves ``stream``'s connection."""
+    for worker in gw.http_workers():
+        if any(c.raddr and c.raddr.port == stream.local_port for c in worker.net_connections("tcp")):
+            return worker.pid
+    return None
+
+
+def test_health_sums_both_workers_streams_as_the_metrics_do_and_the_ros_worker_never_sees_them(gw):
+    """Issue 19: x-medkit-streams' open streams and frames are the HTTP workers' own Prometheus
+    metrics, summed from the multiprocess directory as a scrape sums them; the ROS worker's
+    ``stats`` answer has none of them and it takes no ``streams_report`` any more."""
+    sub = subscribe(gw, "fast")
+    streams: list[EventStream] = []
+    holders: set[int | None] = set()
+    try:
+        while len(holders) < 2 and len(streams) < 40:  # new connections until each worker serves one
+            streams.append(open_stream(gw, sub))
+            holders.add(_holder(gw, streams[-1]))
+        assert holders == {w.pid for w in gw.http_workers()}, holders
+        for stream in streams:
+            assert "payload" in stream.next(timeout=10)
+
+        def agreed():
+            health = gw.get("/health").json()["x-medkit-streams"]
+            scraped = families(gw.url)
+            ok = health["open_streams"] == value(scraped, "sovd_http_streams_open") == len(streams)
+            return (health, scraped) if ok else None
+        health, scraped = poll_until(agreed, 15, message="both workers' streams in /health and /metrics")
+        assert len(streams) <= health["frames_sent"] \
+            <= value(scraped, "sovd_http_stream_frames_sent", "sovd_http_stream_frames_sent_total")
+        ros = gw.rosworker_client()
+        try:
+            answer = ros.call("stats", timeout=5)["streams"]
+            assert not {"open_streams", "frames_sent", "frames_dropped"} & set(answer), answer
+            with pytest.raises(IpcError) as info:
+                ros.call("streams_report", {"pid": 1, "open_streams": 5, "frames_sent": 0, "frames_dropped": 0},
+                         timeout=5)
+            assert info.value.code == "unknown-command"
+        finally:
+            ros.close()
+    finally:
+        for stream in streams:
+            stream.close()
+        requests.delete(gw.api + f"{BASE}/{sub['id']}", timeout=10)
+    poll_until(lambda: gw.get("/health").json()["x-medkit-streams"]["open_streams"] == 0, 15,
+               message="the closed streams gone from /health")
 
 
 def test_streams_go_on_through_a_ros_worker_sigkill(robot):

@@ -228,8 +228,6 @@ class FakeWorker:
             return {"type": args["type"], **info}
         if cmd.startswith("sub_"):
             return self._subscription(cmd, args)
-        if cmd == "streams_report":
-            return {}
         if cmd == "publish":
             return {"topic": args.get("topic"), "type": args.get("type"), "status": "published",
                     "subscriber_count": 1, "unmatched_subscriber_count": 0}
