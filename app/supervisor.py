@@ -118,12 +118,6 @@ class Supervisor:
     def is_running(self) -> bool:
         return self.state == RUNNING
 
-    def is_stopping(self) -> bool:
-        return self.state == STOPPING
-
-    def is_stopped(self) -> bool:
-        return self.state == STOPPED
-
     @property
     def healthy(self) -> bool:
         """The ROS worker answers in time and is not degraded: the condition for WATCHDOG=1."""

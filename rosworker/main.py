@@ -181,7 +181,7 @@ class Worker:
             "version": _version(), "node": node.get_fully_qualified_name(),
             "started_at": time.time_ns(), "domain_id": context.get_domain_id(),
         })
-        executor = RosExecutor(zctx, cfg.runtime_dir, stats, cfg.max_queue_depth, immediate=control.answer)
+        executor = RosExecutor(zctx, cfg.runtime_dir, stats, cfg.max_queue_depth)
         pool = TopicPool(node, executor, stats, max_pool_size=cfg.max_pool_size,
                          cold_wait_cap=cfg.cold_wait_cap, idle_safety_net=cfg.idle_safety_net,
                          max_pool_bytes=cfg.max_pool_bytes)
