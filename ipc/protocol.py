@@ -26,6 +26,8 @@ CONTROL_SOCKET_NAME = "rosworker-ctl.sock"    # control: ping and stats, never b
 LOCK_NAME = "rosworker.lock"
 MAX_FRAME = 4 * 1024 * 1024          # requests larger than this are dropped unread
 MAX_REPLY_FRAME = 256 * 1024 * 1024  # a reply may carry a large sample
+# How a sample shows byte arrays (``bytes`` of sample, subscribe and sub_create; ``?bytes=``).
+BYTES_MODES = ("array", "base64")
 # An HTTP request's id (X-Request-Id) as it may cross the wire and reach a log line.
 REQUEST_ID = re.compile(r"^[A-Za-z0-9._-]{1,128}$")
 

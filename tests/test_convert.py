@@ -36,9 +36,9 @@ from std_msgs.msg import (
 )
 from unique_identifier_msgs.msg import UUID
 
+from ipc.topics import MESSAGE_TYPE as TYPE_RE
 from rosworker import convert
 from rosworker.convert import (
-    TYPE_RE,
     ConversionError,
     check_type_name,
     default_value,
