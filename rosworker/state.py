@@ -1,6 +1,6 @@
 """What a restarted ROS worker needs from its predecessor, kept in the runtime dir.
 
-``<runtime_dir>/pool.json``: the pooled topics (subscribed again as their
+``<runtime_dir>/restart-state.json``: the pooled topics (subscribed again as their
 publishers are discovered), the nodes of the graph (the new worker does
 not answer anyone until discovery has found them again, or a deadline
 passes) and the cyclic subscriptions (their streams go on after the restart).
@@ -30,7 +30,7 @@ from collections.abc import Callable
 
 log = logging.getLogger("sovd.rosworker.state")
 
-FILE_NAME = "pool.json"
+FILE_NAME = "restart-state.json"
 MAX_ITEMS = 8192
 
 
