@@ -53,6 +53,7 @@ from flask import Flask, current_app
 
 from ipc import events, protocol
 from ipc.errors import IpcError
+from ipc.process import PerProcess
 
 from . import metrics, rosclient, samples
 
@@ -460,19 +461,18 @@ class _PerProcess:
         self.runtime_dir = runtime_dir
         self.ros = ros
         self.send_timeout = send_timeout
-        self.hub: StreamHub | None = None
-        self.pid: int | None = None
+        self._hub: PerProcess[StreamHub] = PerProcess(self._make_hub, StreamHub.stop)
         self._fetching: set[str] = set()
 
     def get(self) -> StreamHub:
-        if self.pid != os.getpid():
-            self.hub = StreamHub(self.runtime_dir, self._report, self._lookup, _worker_stopping,
-                                 self.send_timeout)
-            self.hub.type_info = self._type_info
-            self.hub.warm = self._warm
-            self.hub.start()
-            self.pid = os.getpid()
-        return self.hub
+        return self._hub.get()
+
+    def _make_hub(self) -> StreamHub:
+        hub = StreamHub(self.runtime_dir, self._report, self._lookup, _worker_stopping, self.send_timeout)
+        hub.type_info = self._type_info
+        hub.warm = self._warm
+        hub.start()
+        return hub
 
     def _type_info(self, type_name: Any) -> bytes | None:
         """The cached type_info of a frame's type; a miss is fetched in the background, once."""
@@ -510,9 +510,7 @@ class _PerProcess:
                                   "id": stream.id}, timeout=REPORT_TIMEOUT)
 
     def close(self) -> None:
-        if self.hub is not None and self.pid == os.getpid():
-            self.hub.stop()
-        self.hub = self.pid = None
+        self._hub.reset()
 
 
 def _worker_stopping() -> bool:

@@ -27,7 +27,8 @@ import os
 import signal
 import sys
 import time
-from importlib import metadata
+
+from ipc.process import package_version
 
 EXIT_OK = 0
 EXIT_ORPHANED = 1
@@ -44,13 +45,6 @@ REWARM_RETRY = 0.25
 SETTLE_MIN, SETTLE_QUIET, SETTLE_MAX = 1.0, 0.5, 5.0
 
 log = logging.getLogger("sovd.rosworker")
-
-
-def _version() -> str:
-    try:
-        return metadata.version("sovd-gateway")
-    except metadata.PackageNotFoundError:
-        return "0.0.0"
 
 
 def parse_args(argv: list[str] | None):
@@ -178,7 +172,7 @@ class Worker:
                       watchdog_threshold_ms=cfg.watchdog_threshold)
         zctx = zmq.Context()
         control = ControlServer(zctx, cfg.runtime_dir, stats, {
-            "version": _version(), "node": node.get_fully_qualified_name(),
+            "version": package_version(), "node": node.get_fully_qualified_name(),
             "started_at": time.time_ns(), "domain_id": context.get_domain_id(),
         })
         executor = RosExecutor(zctx, cfg.runtime_dir, stats, cfg.max_queue_depth)

@@ -28,6 +28,8 @@ import os
 import threading
 from collections.abc import Callable
 
+from ipc.process import write_atomic
+
 log = logging.getLogger("sovd.rosworker.state")
 
 FILE_NAME = "restart-state.json"
@@ -113,15 +115,10 @@ class RestartState:
                          b',"subscriptions":[', b",".join(records), b"]}"))
         if text == self._written_text:
             return
-        tmp = self.path + ".tmp"
         try:
-            # Private like everything in the runtime dir, whatever the umask (the topic and
-            # node names of the robot are nobody else's business).
-            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-            os.fchmod(fd, 0o600)  # an older copy may have been made with other bits
-            with os.fdopen(fd, "wb") as fh:
-                fh.write(text)
-            os.replace(tmp, self.path)
+            # Private like everything in the runtime dir (the topic and node names of the
+            # robot are nobody else's business).
+            write_atomic(self.path, text)
             self._written_text = text
         except OSError as exc:
             log.warning("could not save the restart state to %s: %s", self.path, exc)

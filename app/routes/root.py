@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import functools
 import time
-from importlib import metadata
 from typing import Any
 
 from flask import Blueprint
+
+from ipc.process import DISTRIBUTION, package_version
 
 from .. import openapi, rosclient
 from ..entities import API_BASE
@@ -17,7 +17,7 @@ from .common import config, entity_id_problem, json_response
 
 bp = Blueprint("root", __name__, url_prefix=API_BASE)
 
-NAME = "sovd-gateway"
+NAME = DISTRIBUTION
 SOVD_VERSION = openapi.SOVD_VERSION
 
 # medkit's capabilities that this gateway does not serve and whose routes are not in
@@ -40,14 +40,6 @@ EXECUTOR_KEYS = (
     "tasks_completed", "tasks_failed", "last_task_latency_us", "max_task_latency_us",
     "current_task_age_ms", "watchdog_trips", "graph_events_received", "loop_errors",
 )
-
-
-@functools.cache  # reading package metadata costs ~0.4 ms; it cannot change in a running process
-def package_version() -> str:
-    try:
-        return metadata.version(NAME)
-    except metadata.PackageNotFoundError:
-        return "0.0.0"
 
 
 @bp.get("/")
