@@ -92,6 +92,24 @@ class Decision:
 class _MappedFile:
     """One process's descriptor and map of the bucket file, and its cache of bucket keys."""
 
+    @classmethod
+    def open(cls, path: str, size: int, slots: int) -> _MappedFile:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)  # once per process, before the first check
+            try:
+                if os.fstat(fd).st_size != size or os.pread(fd, len(MAGIC), 0) != MAGIC:
+                    os.ftruncate(fd, 0)
+                    os.ftruncate(fd, size)
+                    os.pwrite(fd, _HEADER.pack(MAGIC, slots, os.urandom(16), 0.0, 0.0), 0)
+                mapped = mmap.mmap(fd, size)
+            finally:
+                fcntl.flock(fd, fcntl.LOCK_UN)
+        except BaseException:
+            os.close(fd)
+            raise
+        return cls(fd, mapped)
+
     def __init__(self, fd: int, mapped: mmap.mmap):
         self.fd = fd
         self.map = mapped
@@ -118,7 +136,9 @@ class SharedBuckets:
         self.overall = overall
         self.slots = slots
         self.size = _HEADER.size + slots * _SLOT.size
-        self._file: PerProcess[_MappedFile] = PerProcess(self._map_file, _MappedFile.close)
+        # (a partial, not a bound method: no reference cycle, so the map is freed with self)
+        self._file: PerProcess[_MappedFile] = PerProcess(
+            functools.partial(_MappedFile.open, path, self.size, slots), _MappedFile.close)
         self._lock_failures = 0
         self._lock_logged = 0.0
 
@@ -134,23 +154,6 @@ class SharedBuckets:
     @property
     def _salt(self) -> bytes:
         return self._open().salt
-
-    def _map_file(self) -> _MappedFile:
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX)  # once per process, before the first check
-            try:
-                if os.fstat(fd).st_size != self.size or os.pread(fd, len(MAGIC), 0) != MAGIC:
-                    os.ftruncate(fd, 0)
-                    os.ftruncate(fd, self.size)
-                    os.pwrite(fd, _HEADER.pack(MAGIC, self.slots, os.urandom(16), 0.0, 0.0), 0)
-                mapped = mmap.mmap(fd, self.size)
-            finally:
-                fcntl.flock(fd, fcntl.LOCK_UN)
-        except BaseException:
-            os.close(fd)
-            raise
-        return _MappedFile(fd, mapped)
 
     def close(self) -> None:
         self._file.reset()

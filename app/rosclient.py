@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import functools
 import logging
 import threading
 import time
@@ -61,8 +62,11 @@ class RosClient:
         self.ipc_timeout = ipc_timeout
         self.graph_refresh = graph_refresh
         self._build = build
+        # A partial, not a closure over self: no reference cycle, so an unclosed client (and its
+        # ZeroMQ context) is freed by reference counting, sockets first, never by the cyclic
+        # collector, which may finalize the context first and block in its term().
         self._client: PerProcess[RosWorkerClient] = PerProcess(
-            lambda: RosWorkerClient.for_runtime_dir(self.runtime_dir), RosWorkerClient.close)
+            functools.partial(RosWorkerClient.for_runtime_dir, runtime_dir), RosWorkerClient.close)
         # graph cache
         self._graph_lock = threading.Lock()
         self._entities: entities.Entities | None = None

@@ -41,6 +41,7 @@ import logging
 import os
 import socket
 import time
+import weakref
 from collections.abc import Callable, Iterator
 from datetime import UTC, datetime
 from typing import Any
@@ -461,7 +462,10 @@ class _PerProcess:
         self.runtime_dir = runtime_dir
         self.ros = ros
         self.send_timeout = send_timeout
-        self._hub: PerProcess[StreamHub] = PerProcess(self._make_hub, StreamHub.stop)
+        # Through a weak method: a bound one would make a reference cycle, so that the app's
+        # RosClient (and its ZeroMQ context) would wait for the cyclic collector to be freed.
+        make = weakref.WeakMethod(self._make_hub)
+        self._hub: PerProcess[StreamHub] = PerProcess(lambda: make()(), StreamHub.stop)
         self._fetching: set[str] = set()
 
     def get(self) -> StreamHub:
