@@ -113,7 +113,7 @@ def _coerce(kind: type, raw: Any) -> Any:
 
 
 SETTINGS: tuple[Setting, ...] = (
-    # --- ROS worker (architecture.md's table) ---
+    # --- ROS worker (README's settings table) ---
     Setting("sample_timeout", float, 1.0, "seconds a cold read waits for the first message", 0.1, 30),
     Setting("max_pool_size", int, 256, "LRU cap on pooled topic subscriptions", 1, 4096),
     Setting("max_pool_bytes", int, 256 * 2**20, "bytes of kept messages (raw and JSON) before the "
