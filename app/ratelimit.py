@@ -246,7 +246,7 @@ class SharedBuckets:
 def _refill(rate: settings.Rate, tokens: float, last: float, now: float) -> float:
     if not last:
         return float(rate.burst)
-    return min(float(rate.burst), tokens + max(0.0, now - last) * rate.rate)
+    return rate.refill(tokens, now - last)
 
 
 # ---- Flask ------------------------------------------------------------------------------------------

@@ -5,9 +5,9 @@ work socket and keeps the queue (``rosworker/executor.py``), and by the
 control thread (the frames it drops; the watchdog sets ``degraded`` and
 counts ``watchdog_trips``, the ROS thread clears ``degraded``).  There is no
 lock: each store is one attribute under the GIL, and ``ipc_dropped_frames``,
-bumped by both threads, may at worst miss a count.  Reading them never waits behind ROS work: ``snapshot()`` is called
-by the control thread (``ipc/server.py``, ``ping``/``stats``) and only reads
-integers.
+bumped by both threads, may at worst miss a count.  Reading them never waits
+behind ROS work: ``snapshot()`` is called by the control thread
+(``ipc/server.py``, ``ping``/``stats``) and only reads integers.
 ``current_task_age_ms`` is computed at read time from the start time of the
 task that is running now.
 """
