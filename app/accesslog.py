@@ -32,8 +32,7 @@ class LineBudget:
     """A token bucket of log lines: ``rate`` per second, at most ``burst`` at once (one process)."""
 
     def __init__(self, rate: float, burst: float, clock=time.monotonic):
-        self.rate = rate
-        self.burst = burst
+        self.bucket = settings.Rate(rate, burst)
         self.tokens = burst
         self.clock = clock
         self.last = clock()
@@ -42,7 +41,7 @@ class LineBudget:
 
     def take(self) -> bool:
         now = self.clock()
-        self.tokens = min(self.burst, self.tokens + (now - self.last) * self.rate)
+        self.tokens = self.bucket.refill(self.tokens, now - self.last)
         self.last = now
         if self.tokens >= 1.0:
             self.tokens -= 1.0

@@ -2,7 +2,8 @@
 
 Input is the ROS worker's ``graph`` answer (``ipc/PROTOCOL.md``); output is an
 :class:`Entities` index that the routes read.  Nothing here talks to a socket
-or to ROS, so every rule of ``rest-contract.md`` is unit-testable:
+or to ROS, so every rule of the entity model (medkit's, README "What you get
+over HTTP") is unit-testable:
 
 - no areas;
 - one component, the host (id from the hostname, see :func:`host_component_id`);

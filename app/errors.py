@@ -1,6 +1,6 @@
 """JSON errors: the application's own error type and the handlers that send every error as JSON.
 
-Body (``rest-contract.md``)::
+Body (the C++ ros2_medkit gateway's, README "What you get over HTTP")::
 
     {"error_code": "entity-not-found", "message": "Entity not found", "parameters": {"entity_id": "x"}}
 

@@ -39,7 +39,6 @@ to finish, and are killed after it.
 
 from __future__ import annotations
 
-import os
 import resource
 import threading
 import time
@@ -53,13 +52,14 @@ from gunicorn.workers.ggevent import GeventWorker
 from werkzeug.exceptions import RequestTimeout
 
 from common import settings
+from common.process import PerProcess
 
 HEARTBEAT_S = 1.0        # how often the worker tells the master it is alive (gunicorn's own rate)
 DRAIN_CHUNK = 64 * 1024  # reads of a body the application left unread
 FD_MARGIN = 256          # descriptors beside the client connections (ZeroMQ, logs, files)
 
-_stop_event: threading.Event | None = None
-_stop_pid: int | None = None
+# threading.Event looked up when made: gevent's once the worker is patched.
+_stop_event: PerProcess[threading.Event] = PerProcess(lambda: threading.Event())
 
 
 def stopping() -> threading.Event:
@@ -71,11 +71,7 @@ def stopping() -> threading.Event:
     process without gevent (a Flask test client) it is a plain
     ``threading.Event`` that nothing sets.
     """
-    global _stop_event, _stop_pid
-    pid = os.getpid()
-    if _stop_pid != pid:
-        _stop_event, _stop_pid = threading.Event(), pid
-    return _stop_event
+    return _stop_event.get()
 
 
 class BodyTimeout(RequestTimeout):

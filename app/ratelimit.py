@@ -58,6 +58,7 @@ from dataclasses import dataclass
 from flask import Flask, Response, current_app, request
 
 from common import runfiles, settings
+from common.process import PerProcess
 
 from . import metrics
 from .errors import ApiError, error_response
@@ -88,6 +89,43 @@ class Decision:
     retry_after: int    # when refused: whole seconds until a request would be let through
 
 
+class _MappedFile:
+    """One process's descriptor and map of the bucket file, and its cache of bucket keys."""
+
+    @classmethod
+    def open(cls, path: str, size: int, slots: int) -> _MappedFile:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)  # once per process, before the first check
+            try:
+                if os.fstat(fd).st_size != size or os.pread(fd, len(MAGIC), 0) != MAGIC:
+                    os.ftruncate(fd, 0)
+                    os.ftruncate(fd, size)
+                    os.pwrite(fd, _HEADER.pack(MAGIC, slots, os.urandom(16), 0.0, 0.0), 0)
+                mapped = mmap.mmap(fd, size)
+            finally:
+                fcntl.flock(fd, fcntl.LOCK_UN)
+        except BaseException:
+            os.close(fd)
+            raise
+        return cls(fd, mapped)
+
+    def __init__(self, fd: int, mapped: mmap.mmap):
+        self.fd = fd
+        self.map = mapped
+        self.salt = _HEADER.unpack_from(mapped, 0)[2]
+        self.key = functools.lru_cache(maxsize=KEY_CACHE)(self._digest)
+
+    def _digest(self, address: str) -> bytes:
+        """The bucket key of an address: a hash keyed by the file's random salt (no chosen collisions)."""
+        return hashlib.blake2b(address.encode("utf-8", "surrogateescape"), digest_size=16,
+                               key=self.salt).digest()
+
+    def close(self) -> None:
+        self.map.close()
+        os.close(self.fd)
+
+
 class SharedBuckets:
     """The client and global token buckets in one memory-mapped file (see the module docstring)."""
 
@@ -98,50 +136,33 @@ class SharedBuckets:
         self.overall = overall
         self.slots = slots
         self.size = _HEADER.size + slots * _SLOT.size
-        self._pid: int | None = None
-        self._fd = -1
-        self._map: mmap.mmap | None = None
-        self._salt = b""
+        # (a partial, not a bound method: no reference cycle, so the map is freed with self)
+        self._file: PerProcess[_MappedFile] = PerProcess(
+            functools.partial(_MappedFile.open, path, self.size, slots), _MappedFile.close)
         self._lock_failures = 0
         self._lock_logged = 0.0
 
     # ---- the file, per process ----------------------------------------------------------------
-    def _open(self) -> None:
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX)  # once per process, before the first check
-            try:
-                if os.fstat(fd).st_size != self.size or os.pread(fd, len(MAGIC), 0) != MAGIC:
-                    os.ftruncate(fd, 0)
-                    os.ftruncate(fd, self.size)
-                    os.pwrite(fd, _HEADER.pack(MAGIC, self.slots, os.urandom(16), 0.0, 0.0), 0)
-                mapped = mmap.mmap(fd, self.size)
-            finally:
-                fcntl.flock(fd, fcntl.LOCK_UN)
-        except BaseException:
-            os.close(fd)
-            raise
-        self._fd, self._map, self._pid = fd, mapped, os.getpid()
-        self._salt = _HEADER.unpack_from(mapped, 0)[2]
-        self._key = functools.lru_cache(maxsize=KEY_CACHE)(self._digest)
+    def _open(self) -> _MappedFile:
+        """This process's map of the file (mapped on first use)."""
+        return self._file.get()
 
-    def _digest(self, address: str) -> bytes:
-        """The bucket key of an address: a hash keyed by the file's random salt (no chosen collisions)."""
-        return hashlib.blake2b(address.encode("utf-8", "surrogateescape"), digest_size=16,
-                               key=self._salt).digest()
+    @property
+    def _map(self) -> mmap.mmap:
+        return self._open().map
+
+    @property
+    def _salt(self) -> bytes:
+        return self._open().salt
 
     def close(self) -> None:
-        if self._pid == os.getpid():
-            if self._map is not None:
-                self._map.close()
-            os.close(self._fd)
-        self._map, self._fd, self._pid = None, -1, None
+        self._file.reset()
 
-    def _lock(self) -> bool:
+    def _lock(self, fd: int) -> bool:
         deadline = time.monotonic() + LOCK_WAIT
         while True:
             try:
-                fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
                 return True
             except OSError as exc:
                 if exc.errno not in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EINTR):
@@ -155,16 +176,15 @@ class SharedBuckets:
         """Take one token for a request of ``address``; None when neither bucket is configured."""
         if self.client is None and self.overall is None:
             return None
-        if self._pid != os.getpid():
-            self._open()
-        key = self._key(address) if self.client is not None else b""
-        if not self._lock():
+        file = self._open()
+        key = file.key(address) if self.client is not None else b""
+        if not self._lock(file.fd):
             self._lock_failed()
             return None
         try:
-            return self._take(self._map, key, time.monotonic())
+            return self._take(file.map, key, time.monotonic())
         finally:
-            fcntl.flock(self._fd, fcntl.LOCK_UN)
+            fcntl.flock(file.fd, fcntl.LOCK_UN)
 
     def _take(self, mm: mmap.mmap, key: bytes, now: float) -> Decision:
         overall, client = self.overall, self.client
@@ -226,7 +246,7 @@ class SharedBuckets:
 def _refill(rate: settings.Rate, tokens: float, last: float, now: float) -> float:
     if not last:
         return float(rate.burst)
-    return min(float(rate.burst), tokens + max(0.0, now - last) * rate.rate)
+    return rate.refill(tokens, now - last)
 
 
 # ---- Flask ------------------------------------------------------------------------------------------

@@ -25,8 +25,8 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import functools
 import logging
-import os
 import threading
 import time
 from collections.abc import Callable
@@ -35,6 +35,7 @@ from typing import Any
 import orjson
 from flask import Flask, current_app
 
+from common.process import PerProcess
 from ipc.client import RosWorkerClient
 from ipc.errors import IpcError
 
@@ -61,9 +62,11 @@ class RosClient:
         self.ipc_timeout = ipc_timeout
         self.graph_refresh = graph_refresh
         self._build = build
-        self._client: RosWorkerClient | None = None
-        self._pid: int | None = None
-        self._lock = threading.Lock()
+        # A partial, not a closure over self: no reference cycle, so an unclosed client (and its
+        # ZeroMQ context) is freed by reference counting, sockets first, never by the cyclic
+        # collector, which may finalize the context first and block in its term().
+        self._client: PerProcess[RosWorkerClient] = PerProcess(
+            functools.partial(RosWorkerClient.for_runtime_dir, runtime_dir), RosWorkerClient.close)
         # graph cache
         self._graph_lock = threading.Lock()
         self._entities: entities.Entities | None = None
@@ -78,21 +81,11 @@ class RosClient:
 
     @property
     def client(self) -> RosWorkerClient:
-        pid = os.getpid()
-        if self._pid != pid:
-            with self._lock:
-                if self._pid != pid:
-                    self._client = RosWorkerClient.for_runtime_dir(self.runtime_dir)
-                    self._pid = pid
-        return self._client
+        return self._client.get()
 
     def close(self) -> None:
         """Close this process's client (its sockets and ZeroMQ context), e.g. when a test ends."""
-        with self._lock:
-            client, pid = self._client, self._pid
-            self._client = self._pid = None
-        if client is not None and pid == os.getpid():
-            client.close()
+        self._client.reset()
 
     def call(self, cmd: str, args: dict[str, Any] | None = None, timeout: float | None = None,
              **kw: Any) -> dict[str, Any]:

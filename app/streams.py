@@ -40,9 +40,9 @@ from __future__ import annotations
 import collections
 import errno
 import logging
-import os
 import socket
 import time
+import weakref
 from collections.abc import Callable, Iterator
 from datetime import UTC, datetime
 from typing import Any
@@ -53,6 +53,7 @@ import orjson
 import zmq.green as zmq
 from flask import Flask, current_app
 
+from common.process import PerProcess
 from ipc import events, protocol
 from ipc.errors import IpcError
 
@@ -445,19 +446,21 @@ class _PerProcess:
         self.runtime_dir = runtime_dir
         self.ros = ros
         self.send_timeout = send_timeout
-        self.hub: StreamHub | None = None
-        self.pid: int | None = None
+        # Through a weak method: a bound one would make a reference cycle, so that the app's
+        # RosClient (and its ZeroMQ context) would wait for the cyclic collector to be freed.
+        make = weakref.WeakMethod(self._make_hub)
+        self._hub: PerProcess[StreamHub] = PerProcess(lambda: make()(), StreamHub.stop)
         self._fetching: set[str] = set()
 
     def get(self) -> StreamHub:
-        if self.pid != os.getpid():
-            self.hub = StreamHub(self.runtime_dir, self._lookup, _worker_stopping,
-                                 self.send_timeout)
-            self.hub.type_info = self._type_info
-            self.hub.warm = self._warm
-            self.hub.start()
-            self.pid = os.getpid()
-        return self.hub
+        return self._hub.get()
+
+    def _make_hub(self) -> StreamHub:
+        hub = StreamHub(self.runtime_dir, self._lookup, _worker_stopping, self.send_timeout)
+        hub.type_info = self._type_info
+        hub.warm = self._warm
+        hub.start()
+        return hub
 
     def _type_info(self, type_name: Any) -> bytes | None:
         """The cached type_info of a frame's type; a miss is fetched in the background, once."""
@@ -492,9 +495,7 @@ class _PerProcess:
                                   "id": stream.id}, timeout=LOOKUP_TIMEOUT)
 
     def close(self) -> None:
-        if self.hub is not None and self.pid == os.getpid():
-            self.hub.stop()
-        self.hub = self.pid = None
+        self._hub.reset()
 
 
 def _worker_stopping() -> bool:

@@ -14,7 +14,7 @@
 
 The supervisor calls :func:`prepare` once, holding its lock (one gateway per
 runtime directory), before it starts any child.  Nothing here imports more
-than the standard library.
+than the standard library and ``common/process.py``.
 """
 
 from __future__ import annotations
@@ -23,6 +23,8 @@ import json
 import os
 import shutil
 from typing import Any
+
+from common.process import write_atomic
 
 METRICS_DIR = "metrics"
 RATELIMIT_FILE = "ratelimit.buckets"
@@ -62,13 +64,9 @@ def prepare(runtime_dir: str) -> str:
 def write_supervisor_state(runtime_dir: str, restarts: int, worker_started_at: float,
                            worker_pid: int) -> None:
     """One small JSON file, replaced atomically (a reader never sees half of it)."""
-    path = os.path.join(runtime_dir, SUPERVISOR_STATE)
-    tmp = path + ".tmp"
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o600)
-    with os.fdopen(fd, "w") as fh:
-        json.dump({"ros_worker_restarts": restarts, "ros_worker_started_at": worker_started_at,
-                   "ros_worker_pid": worker_pid}, fh)
-    os.replace(tmp, path)
+    write_atomic(os.path.join(runtime_dir, SUPERVISOR_STATE),
+                 json.dumps({"ros_worker_restarts": restarts, "ros_worker_started_at": worker_started_at,
+                             "ros_worker_pid": worker_pid}).encode())
 
 
 def read_supervisor_state(runtime_dir: str) -> dict[str, Any] | None:

@@ -113,7 +113,7 @@ def _coerce(kind: type, raw: Any) -> Any:
 
 
 SETTINGS: tuple[Setting, ...] = (
-    # --- ROS worker (architecture.md's table) ---
+    # --- ROS worker (README's settings table) ---
     Setting("sample_timeout", float, 1.0, "seconds a cold read waits for the first message", 0.1, 30),
     Setting("max_pool_size", int, 256, "LRU cap on pooled topic subscriptions", 1, 4096),
     Setting("max_pool_bytes", int, 256 * 2**20, "bytes of kept messages (raw and JSON) before the "
@@ -293,10 +293,18 @@ def load(args: argparse.Namespace | None = None, environ: dict[str, str] | None 
 
 @dataclass(frozen=True)
 class Rate:
-    """A token bucket: ``rate`` tokens per second, at most ``burst`` at once."""
+    """A token bucket: ``rate`` tokens per second, at most ``burst`` at once.
+
+    The one refill rule of the gateway's buckets: the rate limiter's (``app/ratelimit.py``)
+    and the access log's (``app/accesslog.py``).
+    """
 
     rate: float
-    burst: int
+    burst: float  # an int when parsed from a setting (it is the X-RateLimit-Limit header)
+
+    def refill(self, tokens: float, elapsed: float) -> float:
+        """The tokens of a bucket that held ``tokens`` ``elapsed`` seconds ago (never above the burst)."""
+        return min(float(self.burst), tokens + max(0.0, elapsed) * self.rate)
 
 
 def parse_rate(text: str, name: str = "rate_limit") -> Rate | None:

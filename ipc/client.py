@@ -2,9 +2,9 @@
 
 Before fork / after fork: constructing a :class:`RosWorkerClient` touches no
 ZeroMQ state.  The context and the channel pools are made lazily in the
-process that first calls :meth:`~RosWorkerClient.call`; a process that finds
-them made by another pid (it was forked) makes its own and never touches the
-parent's.
+process that first calls :meth:`~RosWorkerClient.call` (``common/process.py``'s
+:class:`~common.process.PerProcess`); a forked child makes its own and never
+touches the parent's.
 
 Channels.  A channel is one DEALER socket connected to an endpoint, a monitor
 of that connection's disconnections, and how to wait for both.  A call borrows
@@ -36,13 +36,14 @@ from __future__ import annotations
 
 import contextlib
 import itertools
-import os
 import sys
 import threading
 import time
 from typing import Any
 
 import zmq
+
+from common.process import PerProcess
 
 from . import protocol
 from .errors import IpcError
@@ -179,15 +180,27 @@ class _ChannelPool:
             channel.close()
 
 
+class _Transport:
+    """One process's ZeroMQ context and channel pools (made on first use, see the module docstring)."""
+
+    def __init__(self) -> None:
+        self.green = green()
+        self.ctx = zmq.Context()
+        self.pools: dict[str, _ChannelPool] = {}
+
+    def close(self) -> None:
+        pools, self.pools = self.pools, {}
+        for pool in pools.values():
+            pool.close()
+        self.ctx.term()
+
+
 class RosWorkerClient:
     def __init__(self, endpoint: str, pool_size: int = POOL_SIZE):
         self.endpoint = endpoint
         self.control_endpoint = protocol.control_endpoint(endpoint)
         self.pool_size = pool_size
-        self._pid: int | None = None
-        self._ctx: zmq.Context | None = None
-        self._green = False
-        self._pools: dict[str, _ChannelPool] = {}
+        self._transport: PerProcess[_Transport] = PerProcess(_Transport, _Transport.close)
         self._lock = threading.Lock()
         self._ids = itertools.count(1)
 
@@ -198,31 +211,27 @@ class RosWorkerClient:
     @property
     def channel_count(self) -> int:
         """Channels (DEALER sockets) this process holds open, over every endpoint."""
-        if self._pid != os.getpid():
-            return 0
         return sum(pool.open_count for pool in list(self._pools.values()))
+
+    @property
+    def _pools(self) -> dict[str, _ChannelPool]:
+        """This process's channel pools by endpoint (none before its first call)."""
+        transport = self._transport.peek()
+        return {} if transport is None else transport.pools
 
     def _endpoint_for(self, cmd: str) -> str:
         """``ping`` and ``stats`` go to the worker's control socket, every other command to its work socket."""
         return self.control_endpoint if cmd in protocol.IMMEDIATE else self.endpoint
 
     def _pool(self, endpoint: str) -> _ChannelPool:
-        pid = os.getpid()
-        if self._pid != pid:
-            with self._lock:
-                if self._pid != pid:
-                    # Forked (or first use): never touch the parent's context or sockets.
-                    self._green = green()
-                    self._ctx = zmq.Context()
-                    self._pools = {}
-                    self._pid = pid
-        pool = self._pools.get(endpoint)
+        transport = self._transport.get()
+        pool = transport.pools.get(endpoint)
         if pool is None:
             with self._lock:
-                pool = self._pools.get(endpoint)
+                pool = transport.pools.get(endpoint)
                 if pool is None:
-                    pool = self._pools[endpoint] = _ChannelPool(self._ctx, endpoint, self.pool_size,
-                                                                self._green)
+                    pool = transport.pools[endpoint] = _ChannelPool(transport.ctx, endpoint, self.pool_size,
+                                                                    transport.green)
         return pool
 
     def call(self, cmd: str, args: dict[str, Any] | None = None, timeout: float = 2.0,
@@ -313,13 +322,5 @@ class RosWorkerClient:
         A context whose sockets are all closed terminates at once; left to the
         garbage collector with a socket still open, ``term`` would block.
         """
-        with self._lock:
-            pools, self._pools = self._pools, {}
-            ctx, owner = self._ctx, self._pid
-            self._ctx, self._pid = None, None
-        if ctx is None or owner != os.getpid():
-            return  # never touch a context inherited across fork()
-        for pool in pools.values():
-            pool.close()
-        ctx.term()
+        self._transport.reset()  # never a context inherited across fork(): the child forgot it
 

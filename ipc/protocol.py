@@ -26,7 +26,8 @@ CONTROL_SOCKET_NAME = "rosworker-ctl.sock"    # control: ping and stats, never b
 LOCK_NAME = "rosworker.lock"
 MAX_FRAME = 4 * 1024 * 1024          # requests larger than this are dropped unread
 MAX_REPLY_FRAME = 256 * 1024 * 1024  # a reply may carry a large sample
-MAX_TOPIC_LEN = 1024
+# How a sample shows byte arrays (``bytes`` of sample, subscribe and sub_create; ``?bytes=``).
+BYTES_MODES = ("array", "base64")
 # An HTTP request's id (X-Request-Id) as it may cross the wire and reach a log line.
 REQUEST_ID = re.compile(r"^[A-Za-z0-9._-]{1,128}$")
 
@@ -38,8 +39,6 @@ COMMANDS = (
 # Commands answered from counters by the control thread, without queueing behind ROS work;
 # clients send them to the control socket.
 IMMEDIATE = ("ping", "stats")
-# Commands that may be sent again after a timeout (publish and sub_create are not).
-IDEMPOTENT = frozenset(c for c in COMMANDS if c not in ("publish", "sub_create"))
 
 
 def endpoint(runtime_dir: str) -> str:

@@ -25,7 +25,6 @@ the sockets.
 
 from __future__ import annotations
 
-import fcntl
 import logging
 import os
 import threading
@@ -35,6 +34,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import zmq
+
+from common.process import PidfileHeld, lock_pidfile
 
 from . import events, protocol
 from .errors import IpcError
@@ -56,21 +57,11 @@ class RuntimeLock:
         self._fh = None
 
     def acquire(self) -> None:
-        fh = open(self.path, "a+")  # noqa: SIM115 - held while the worker runs
         try:
-            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            fh.seek(0)
-            holder = fh.read().strip() or "another process"
-            fh.close()
-            raise LockHeld(f"another ROS worker (pid {holder}) already serves {os.path.dirname(self.path)}; "
-                           "refusing to take its socket") from None
-        fh.seek(0)
-        fh.truncate()
-        fh.write(str(os.getpid()))
-        fh.flush()
-        os.chmod(self.path, 0o600)
-        self._fh = fh
+            self._fh = lock_pidfile(self.path)
+        except PidfileHeld as exc:
+            raise LockHeld(f"another ROS worker (pid {exc.holder or 'another process'}) already serves "
+                           f"{os.path.dirname(self.path)}; refusing to take its socket") from None
 
     def release(self) -> None:
         if self._fh is not None:

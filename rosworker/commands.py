@@ -22,12 +22,13 @@ from rclpy.exceptions import NameValidationException
 
 from ipc import events
 from ipc.errors import IpcError
+from ipc.protocol import BYTES_MODES
 from ipc.topics import InvalidTopic, normalize_topic
 
 from . import msgtypes
 from .executor import Task
 from .graph import GraphMonitor
-from .pool import BYTES_MODES, TopicPool
+from .pool import TopicPool
 from .publishers import PublisherPool
 from .schema import default_value, schema
 from .streams import StreamRegistry

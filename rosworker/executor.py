@@ -9,8 +9,8 @@ between threads, no lock.
 
 ``ping`` and ``stats`` are answered by the control thread on a socket of its
 own (``ipc/server.py``), so they never wait behind ROS work, however long the
-queue or the task that runs.  (Sent to the work socket, they are answered at
-once when read, for older clients.)
+queue or the task that runs.  Sent to the work socket, they are refused
+(``bad-request``) as soon as they are read.
 
 Sleeping: in one ``zmq.Poller.poll`` over the work socket and a wake-up pipe
 (written by :meth:`RosExecutor.stop`, which is async-signal-safe, by
@@ -54,7 +54,7 @@ import zmq
 
 from ipc import protocol
 from ipc.errors import IpcError
-from ipc.server import Request, bind_router, read_requests, reply_frame
+from ipc.server import Request, bind_router, read_requests
 
 from .requestlog import bound
 from .stats import Stats
@@ -119,13 +119,11 @@ class RosExecutor:
     """Owns the ROS thread, the work socket, the task queue and the timers."""
 
     def __init__(self, zctx: zmq.Context, runtime_dir: str, stats: Stats, max_queue_depth: int,
-                 immediate: Callable[[str], dict[str, Any]] | None = None,
                  stop_when: Callable[[], bool] = lambda: False):
         self._zctx = zctx
         self.runtime_dir = runtime_dir
         self.stats = stats
         self.max_queue_depth = max_queue_depth
-        self._immediate = immediate            # ping/stats sent to the work socket
         self._stop_when = stop_when            # looked at every round: True ends the loop (a signal)
         self._queue: collections.deque[Task] = collections.deque()
         self._timers: list[tuple[float, int, Timer]] = []
@@ -209,9 +207,9 @@ class RosExecutor:
 
     def _accept(self, request: Request) -> None:
         """One decoded request: answer it now, queue it, or refuse it (raises IpcError)."""
-        if request.cmd in protocol.IMMEDIATE and self._immediate is not None:
-            self._send_frame(request.identity, reply_frame(request.rid, self._immediate(request.cmd)))
-            return
+        if request.cmd in protocol.IMMEDIATE:
+            raise IpcError("bad-request", f"{request.cmd} is answered on the control socket "
+                           f"({protocol.CONTROL_SOCKET_NAME}), not on the work socket")
         if self.closing:
             raise IpcError("shutdown", "The gateway is shutting down")
         if len(self._queue) >= self.max_queue_depth:

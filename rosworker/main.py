@@ -38,10 +38,10 @@ import os
 import signal
 import sys
 import time
-from importlib import metadata
 
 from common import pdeathsig
 from common import settings as config
+from common.process import package_version
 from ipc.errors import IpcError
 
 from .graph import Endpoints, GraphMonitor, node_names
@@ -64,13 +64,6 @@ REWARM_RETRY = 0.25
 SETTLE_MIN, SETTLE_QUIET, SETTLE_MAX = 1.0, 0.5, 5.0
 
 log = logging.getLogger("sovd.rosworker")
-
-
-def _version() -> str:
-    try:
-        return metadata.version("sovd-gateway")
-    except metadata.PackageNotFoundError:
-        return "0.0.0"
 
 
 def parse_args(argv: list[str] | None):
@@ -189,10 +182,10 @@ class Worker:
                       watchdog_threshold_ms=cfg.watchdog_threshold)
         zctx = zmq.Context()
         control = ControlServer(zctx, cfg.runtime_dir, stats, {
-            "version": _version(), "node": node.get_fully_qualified_name(),
+            "version": package_version(), "node": node.get_fully_qualified_name(),
             "started_at": time.time_ns(), "domain_id": context.get_domain_id(),
         })
-        executor = RosExecutor(zctx, cfg.runtime_dir, stats, cfg.max_queue_depth, immediate=control.answer,
+        executor = RosExecutor(zctx, cfg.runtime_dir, stats, cfg.max_queue_depth,
                                stop_when=self._signalled)
         # A signal writes to the executor's wake-up pipe, so the loop wakes up and sees it at once.
         signal.set_wakeup_fd(executor.wakeup_fd, warn_on_full_buffer=False)

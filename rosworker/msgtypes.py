@@ -23,12 +23,13 @@ import functools
 import importlib
 import importlib.util
 import os
-import re
 from typing import Any
 
 from rosidl_parser import definition as _d
 
-__all__ = ["TYPE_RE", "NON_FINITE", "ConversionError", "check_type_name", "load_type", "type_name"]
+from ipc.topics import MESSAGE_TYPE, valid_message_type
+
+__all__ = ["NON_FINITE", "ConversionError", "check_type_name", "load_type", "type_name"]
 
 
 class ConversionError(ValueError):
@@ -42,9 +43,6 @@ class ConversionError(ValueError):
 
 # ---------------------------------------------------------------------------- type names
 
-#: Accepted type names: exactly ``pkg/msg/Name`` (use with ``fullmatch``).
-TYPE_RE = re.compile(r"([a-z][a-z0-9_]*)/msg/([A-Z][A-Za-z0-9]*)")
-_MAX_NAME_LEN = 256
 
 
 def _short(text: str, limit: int = 80) -> str:
@@ -56,7 +54,7 @@ def check_type_name(name: Any) -> None:
     """Raise ConversionError("invalid-type") unless ``name`` is exactly ``pkg/msg/Name``."""
     if not isinstance(name, str):
         raise ConversionError("invalid-type", f"Message type must be a string, got {type(name).__name__}")
-    if len(name) > _MAX_NAME_LEN or not TYPE_RE.fullmatch(name):
+    if not valid_message_type(name):
         raise ConversionError(
             "invalid-type",
             f"Invalid message type {_short(name)}: expected 'package/msg/Name', e.g. 'std_msgs/msg/String'",
@@ -89,7 +87,7 @@ def _is_ros_interface_package(pkg: str) -> bool:
 
 @functools.lru_cache(maxsize=1024)  # exceptions are not cached: a later install is picked up
 def _load_checked(name: str) -> type:
-    pkg, cls_name = TYPE_RE.fullmatch(name).groups()
+    pkg, cls_name = MESSAGE_TYPE.fullmatch(name).groups()
     missing = ConversionError("type-not-installed", f"Message type '{name}' is not installed on the gateway")
     if not _is_ros_interface_package(pkg):
         raise missing

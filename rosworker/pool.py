@@ -54,7 +54,6 @@ log = logging.getLogger("sovd.rosworker.pool")
 UNSUPPORTED_TYPES_CAP = 1024
 LAST_TYPES_CAP = 4096
 UNDECODABLE_CAP = 4096
-BYTES_MODES = ("array", "base64")
 
 
 class Waiter:

@@ -1,4 +1,4 @@
-"""QoS matched to the other side of a topic (architecture.md's rules).
+"""QoS matched to the other side of a topic (README "How it works"; the rules below).
 
 Our subscriptions (the pool), matched to the topic's publishers:
 

@@ -1,6 +1,6 @@
 """What a restarted ROS worker needs from its predecessor, kept in the runtime dir.
 
-``<runtime_dir>/pool.json``: the pooled topics (subscribed again as their
+``<runtime_dir>/restart-state.json``: the pooled topics (subscribed again as their
 publishers are discovered), the nodes of the graph (the new worker does
 not answer anyone until discovery has found them again, or a deadline
 passes) and the cyclic subscriptions (their streams go on after the restart).
@@ -28,9 +28,11 @@ import os
 import threading
 from collections.abc import Callable
 
+from common.process import write_atomic
+
 log = logging.getLogger("sovd.rosworker.state")
 
-FILE_NAME = "pool.json"
+FILE_NAME = "restart-state.json"
 MAX_ITEMS = 8192
 
 
@@ -113,15 +115,10 @@ class RestartState:
                          b',"subscriptions":[', b",".join(records), b"]}"))
         if text == self._written_text:
             return
-        tmp = self.path + ".tmp"
         try:
-            # Private like everything in the runtime dir, whatever the umask (the topic and
-            # node names of the robot are nobody else's business).
-            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-            os.fchmod(fd, 0o600)  # an older copy may have been made with other bits
-            with os.fdopen(fd, "wb") as fh:
-                fh.write(text)
-            os.replace(tmp, self.path)
+            # Private like everything in the runtime dir (the topic and node names of the
+            # robot are nobody else's business).
+            write_atomic(self.path, text)
             self._written_text = text
         except OSError as exc:
             log.warning("could not save the restart state to %s: %s", self.path, exc)

@@ -3,10 +3,14 @@
 Which counters there are, their kinds and sections, is declared once in
 ``ipc/counters.py``; this class holds the values of those the ROS worker counts.
 
-Counters are plain attributes written by the ROS thread (and, for the queue,
-by the IPC thread under the executor's lock).  Reading them never waits
-behind ROS work: ``snapshot()`` is called by whichever thread serves the IPC
-socket (see ``rosworker/executor.py``) and only reads integers.
+Counters are plain attributes written by the ROS thread, which also reads the
+work socket and keeps the queue (``rosworker/executor.py``), and by the
+control thread (the frames it drops; the watchdog sets ``degraded`` and
+counts ``watchdog_trips``, the ROS thread clears ``degraded``).  There is no
+lock: each store is one attribute under the GIL, and ``ipc_dropped_frames``,
+bumped by both threads, may at worst miss a count.  Reading them never waits
+behind ROS work: ``snapshot()`` is called by the control thread
+(``ipc/server.py``, ``ping``/``stats``) and only reads integers.
 ``current_task_age_ms`` is computed at read time from the start time of the
 task that is running now.
 """
@@ -82,7 +86,7 @@ class Stats:
         return max(0, int(((now or time.monotonic()) - started) * 1000))
 
     def check_watchdog(self) -> None:
-        """Trip once per episode when the running task exceeds the threshold (IPC thread)."""
+        """Trip once per episode when the running task exceeds the threshold (control thread)."""
         if self.current_task_age_ms() > self.watchdog_threshold_ms and not self.degraded:
             self.degraded = True
             self.watchdog_trips += 1

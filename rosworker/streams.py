@@ -71,7 +71,7 @@ from ipc.server import bind_publisher
 
 from .executor import RosExecutor, Timer
 from .graph import GraphMonitor
-from .pool import BYTES_MODES, TopicPool
+from .pool import TopicPool
 from .stats import Stats
 
 log = logging.getLogger("sovd.rosworker.streams")
@@ -334,7 +334,7 @@ class StreamRegistry:
             watch.count -= 1
             if watch.count <= 0:
                 del watches[(sub.topic, sub.bytes)]
-                if not any((sub.topic, m) in w for w in self.watches.values() for m in BYTES_MODES):
+                if not any((sub.topic, m) in w for w in self.watches.values() for m in protocol.BYTES_MODES):
                     self._unpooled.pop(sub.topic, None)
 
     # ---- ticks ----------------------------------------------------------------------------

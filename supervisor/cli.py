@@ -15,18 +15,11 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
-from importlib import metadata
 
 from common import settings as config
+from common.process import package_version
 
 EXIT_USAGE = 2
-
-
-def _version() -> str:
-    try:
-        return metadata.version("sovd-gateway")
-    except metadata.PackageNotFoundError:
-        return "0.0.0"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -37,7 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Every option can also be set as SOVD_<NAME> in the environment or as a key "
                "of the TOML file given with --config; options win over both.",
     )
-    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
     config.add_arguments(parser)
     return parser
 

@@ -1,4 +1,4 @@
-"""systemd's notify protocol (sd_notify(3)), stdlib only.
+"""systemd's notify protocol (sd_notify(3)), stdlib only (and ``common/process.py``).
 
 The service manager passes ``NOTIFY_SOCKET`` (a unix datagram socket: a path,
 or an abstract name written with a leading ``@``) and, when ``WatchdogSec=``
@@ -22,6 +22,8 @@ import os
 import socket
 from collections.abc import Mapping
 
+from common.process import PerProcess
+
 log = logging.getLogger("sovd.sdnotify")
 
 SEND_TIMEOUT = 1.0  # seconds
@@ -39,6 +41,12 @@ def _address(raw: str) -> str | None:
     return "\0" + raw[1:] if raw[0] == "@" else raw
 
 
+def _notify_socket() -> socket.socket:
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
+    sock.settimeout(SEND_TIMEOUT)
+    return sock
+
+
 class Notifier:
     def __init__(self, environ: Mapping[str, str] | None = None):
         env = os.environ if environ is None else environ
@@ -54,8 +62,7 @@ class Notifier:
         pid = env.get("WATCHDOG_PID")
         if usec > 0 and (not pid or pid == str(os.getpid())):
             self._watchdog_usec = usec
-        self._sock: socket.socket | None = None
-        self._sock_pid: int | None = None
+        self._sock: PerProcess[socket.socket] = PerProcess(_notify_socket, socket.socket.close)
 
     @property
     def enabled(self) -> bool:
@@ -74,11 +81,7 @@ class Notifier:
             return False
         data = "\n".join(f.replace("\n", " ") for f in fields).encode("utf-8", "replace")
         try:
-            if self._sock is None or self._sock_pid != os.getpid():
-                sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
-                sock.settimeout(SEND_TIMEOUT)
-                self._sock, self._sock_pid = sock, os.getpid()
-            self._sock.sendto(data, self.address)
+            self._sock.get().sendto(data, self.address)
             return True
         except OSError as exc:  # includes socket.timeout
             log.debug("sd_notify(%r) failed: %s", data, exc)
@@ -98,7 +101,4 @@ class Notifier:
         return self.notify("STOPPING=1", *([f"STATUS={status}"] if status else []))
 
     def close(self) -> None:
-        if self._sock is not None and self._sock_pid == os.getpid():
-            self._sock.close()
-        self._sock = None
-        self._sock_pid = None
+        self._sock.reset()

@@ -45,7 +45,6 @@ the children.
 from __future__ import annotations
 
 import collections
-import fcntl
 import logging
 import os
 import select
@@ -54,6 +53,7 @@ import subprocess
 import time
 
 from common import runfiles
+from common.process import PidfileHeld, lock_pidfile
 from common.settings import RESTART_ENV, Config
 from ipc import protocol
 from ipc.client import RosWorkerClient
@@ -117,12 +117,6 @@ class Supervisor:
 
     def is_running(self) -> bool:
         return self.state == RUNNING
-
-    def is_stopping(self) -> bool:
-        return self.state == STOPPING
-
-    def is_stopped(self) -> bool:
-        return self.state == STOPPED
 
     @property
     def healthy(self) -> bool:
@@ -207,10 +201,10 @@ class Supervisor:
     def _start(self) -> int | None:
         cfg = self.cfg
         try:
-            self._take_lock()
-        except BlockingIOError:
+            self._lock_fh = lock_pidfile(os.path.join(cfg.runtime_dir, SUPERVISOR_LOCK))
+        except PidfileHeld as exc:
             log.error("another sovd-gateway (pid %s) already runs with runtime dir %s; not starting",
-                      self._lock_holder() or "?", cfg.runtime_dir)
+                      exc.holder or "?", cfg.runtime_dir)
             return EXIT_CANNOT_BOOT
         problem = bind_problem(cfg.bind)
         if problem:
@@ -224,28 +218,6 @@ class Supervisor:
         self._status(f"starting ROS worker (runtime dir {cfg.runtime_dir})")
         self._start_worker()
         return None
-
-    def _take_lock(self) -> None:
-        path = os.path.join(self.cfg.runtime_dir, SUPERVISOR_LOCK)
-        fh = open(path, "a+")  # noqa: SIM115 - held for the supervisor's lifetime
-        try:
-            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            fh.close()
-            raise
-        os.chmod(path, 0o600)
-        fh.seek(0)
-        fh.truncate()
-        fh.write(str(os.getpid()))
-        fh.flush()
-        self._lock_fh = fh
-
-    def _lock_holder(self) -> str:
-        try:
-            with open(os.path.join(self.cfg.runtime_dir, SUPERVISOR_LOCK)) as fh:
-                return fh.read().strip()
-        except OSError:
-            return ""
 
     def _child_env(self) -> dict[str, str]:
         env = child_env(os.environ)

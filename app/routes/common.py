@@ -15,6 +15,8 @@ from ..entities import COLLECTIONS, ENTITY_ID_MAX, KINDS, PARAM_NAMES, Entity
 from ..errors import ApiError
 
 _ID_CHAR = re.compile(r"[^A-Za-z0-9_-]")
+# A ``%`` not followed by two hex digits: what percent-decoding silently passes through.
+BAD_PERCENT = re.compile(r"%(?![0-9A-Fa-f]{2})")
 
 
 def json_response(obj: Any, status: int = 200, headers: dict[str, str] | None = None) -> Response:
@@ -39,7 +41,7 @@ class DataIdConverter(BaseConverter):
     Werkzeug's ``path`` converter does not match a leading ``/`` (so
     ``data//a/b`` would not route) and ``.`` does not match a newline (so an
     encoded ``%0A`` would become a 404 instead of a 400); this one takes
-    everything and leaves the checking to :func:`app.routes.requests.topic_from_data_id`.
+    everything and leaves the checking to :func:`app.routes.data_checks.topic_from_data_id`.
     """
 
     regex = r"[\s\S]*"

@@ -17,8 +17,9 @@ from ipc.errors import IpcError
 from .. import rosclient, samples
 from ..entities import API_BASE, data_items
 from ..errors import ApiError
+from .auth import authorize_publish
 from .common import check_entity_id, config, json_response, lookup
-from .requests import authorize_publish, bytes_mode, publish_body, topic_from_data_id
+from .data_checks import bytes_mode, publish_body, topic_from_data_id
 
 bp = Blueprint("data", __name__, url_prefix=API_BASE)
 

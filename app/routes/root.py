@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import functools
 import time
-from importlib import metadata
 from typing import Any
 
 from flask import Blueprint
 
+from common.process import DISTRIBUTION, package_version
 from ipc import counters
 
 from .. import metrics, openapi, rosclient
@@ -19,19 +18,13 @@ from .common import config, entity_id_problem, json_response
 
 bp = Blueprint("root", __name__, url_prefix=API_BASE)
 
-NAME = "sovd-gateway"
+NAME = DISTRIBUTION
 SOVD_VERSION = openapi.SOVD_VERSION
 
 # medkit's capabilities that this gateway does not serve and whose routes are not in
 # unimplemented.ROUTES (later issues implement them).
 NOT_SERVED = ("operations", "async_actions", "configurations", "faults", "logs", "triggers")
 
-@functools.cache  # reading package metadata costs ~0.4 ms; it cannot change in a running process
-def package_version() -> str:
-    try:
-        return metadata.version(NAME)
-    except metadata.PackageNotFoundError:
-        return "0.0.0"
 
 
 @bp.get("/")

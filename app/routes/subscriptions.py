@@ -17,23 +17,22 @@ from flask import Blueprint, current_app, request
 
 from ipc.errors import IpcError
 from ipc.events import INTERVALS
+from ipc.protocol import BYTES_MODES
 from ipc.topics import InvalidTopic, normalize_topic
 
 from .. import rosclient, streams
 from ..entities import API_BASE
 from ..errors import ApiError
+from .auth import authorize_change
 from .bodies import json_object
-from .common import config, json_response, lookup
-from .requests import authorize_change
+from .common import BAD_PERCENT, config, json_response, lookup
 
 bp = Blueprint("subscriptions", __name__, url_prefix=API_BASE)
 
 ENTITY = "/<any(apps, components, functions):collection>/<entity_id>"
 MAX_RESOURCE_LENGTH = 4096
 _RESOURCE = re.compile(r"^/api/v1/([^/?#]+)/([^/?#]+)/([^/?#]+)(/.*)?$")
-_BAD_PERCENT = re.compile(r"%(?![0-9A-Fa-f]{2})")
 _SUB_ID = re.compile(r"^sub_[0-9a-f]{16}$")
-BYTES_MODES = ("array", "base64")
 UNKNOWN_CLIENT = "unknown"
 
 
@@ -97,7 +96,7 @@ def parse_resource(resource: Any, collection: str, entity_id: str) -> tuple[str,
     parts = urlsplit(resource)
     if parts.scheme or parts.netloc or parts.fragment:
         raise invalid("give the path only (/api/v1/{apps|components|functions}/{id}/data/{topic})")
-    if _BAD_PERCENT.search(parts.path):
+    if BAD_PERCENT.search(parts.path):
         raise invalid("it contains an invalid percent-encoding")
     match = _RESOURCE.match(parts.path)
     if not match or match.group(1) not in ("apps", "components", "functions"):

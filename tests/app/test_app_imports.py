@@ -9,7 +9,7 @@ from tests.support.procs import REPO
 
 HTTP_MODULES = ("app.wsgi", "app.errors", "app.rosclient", "app.entities", "app.openapi",
                 "app.routes.common", "app.routes.root", "app.routes.discovery", "app.routes.data",
-                "app.routes.requests", "ipc.client", "ipc.errors", "ipc.topics")
+                "app.routes.data_checks", "app.routes.auth", "ipc.client", "ipc.errors", "ipc.topics")
 
 
 def run(code: str) -> subprocess.CompletedProcess:

@@ -164,6 +164,18 @@ def test_invalid_type_format(client, fw, type_name):
     assert nothing_published(fw)
 
 
+@pytest.mark.parametrize("type_name", ["Std_msgs/msg/Bool", "std_msgs/msg/bool", "std_msgs/msg/Bo_ol"])
+def test_type_names_rosidl_refuses_are_refused_before_the_ros_worker(client, fw, type_name):
+    """The HTTP side checks with the ROS worker's rule (ipc/topics.py): upper-case packages and
+    lower-case or ``_``-containing message names never reach it."""
+    r = client.put(URL, json={"type": type_name, "data": {}})
+    assert r.status_code == 400
+    body = r.get_json()
+    assert body["error_code"] == "invalid-parameter"
+    assert body["message"] == "Invalid message type format"
+    assert nothing_published(fw)
+
+
 def test_unknown_entity_is_404(client, fw):
     r = client.put("/api/v1/apps/ghost/data/body/lights/cmd", json=BODY)
     assert r.status_code == 404 and r.get_json()["error_code"] == "entity-not-found"

@@ -465,7 +465,7 @@ def test_a_stream_whose_subscription_did_not_survive_a_restart_ends(robot):
     gw = start_gateway()
     try:
         sub = subscribe(gw, "normal")
-        state = os.path.join(gw.runtime_dir, "pool.json")
+        state = os.path.join(gw.runtime_dir, "restart-state.json")
         poll_until(lambda: sub["id"] in open(state).read(), 5, message="the subscription saved")
         with open_stream(gw, sub) as stream:
             assert "payload" in stream.next(timeout=5)
@@ -502,7 +502,7 @@ def test_a_retime_whose_updated_event_was_lost_still_reaches_the_open_stream(rob
     worker = None
     try:
         sub = subscribe(gw, "slow")
-        state = os.path.join(gw.runtime_dir, "pool.json")
+        state = os.path.join(gw.runtime_dir, "restart-state.json")
         poll_until(lambda: sub["id"] in open(state).read(), 5, message="the subscription saved")
         args = {"collection": "apps", "entity_id": APP, "id": sub["id"]}
         with open_stream(gw, sub) as stream:

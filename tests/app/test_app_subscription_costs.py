@@ -122,7 +122,7 @@ def test_a_new_gateway_on_the_same_runtime_dir_starts_without_the_last_runs_subs
             base = _base(gw)
             r = _create(requests, gw, base, unique_topic("before"))
             assert r.status_code == 201, r.text
-            state = os.path.join(runtime_dir, "pool.json")
+            state = os.path.join(runtime_dir, "restart-state.json")
             poll_until(lambda: os.path.exists(state) and r.json()["id"] in open(state).read(), 5,
                        message="the subscription saved")
         finally:

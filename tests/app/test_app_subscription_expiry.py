@@ -90,7 +90,7 @@ def test_a_restarted_ros_worker_keeps_each_subscriptions_expiry():
         duration = 20
         base, sub = _subscribe(gw, "restarted", duration)
         made = time.monotonic()
-        state = os.path.join(gw.runtime_dir, "pool.json")
+        state = os.path.join(gw.runtime_dir, "restart-state.json")
         poll_until(lambda: os.path.exists(state) and sub["id"] in open(state).read(), 5,
                    message="the subscription saved")
         old = gw.rosworker_pid()

@@ -7,8 +7,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from rclpy.exceptions import InvalidTopicNameException
 from rclpy.validate_full_topic_name import validate_full_topic_name
+from rosidl_adapter.parser import is_valid_message_name, is_valid_package_name
 
-from ipc.topics import MAX_TOPIC_LENGTH, InvalidTopic, normalize_topic
+from ipc.topics import (
+    MAX_TOPIC_LENGTH,
+    MESSAGE_TYPE,
+    InvalidTopic,
+    normalize_topic,
+    valid_message_type,
+)
 
 
 def rclpy_accepts(full_name: str) -> bool:
@@ -61,3 +68,27 @@ _NAMES = st.one_of(
 def test_random_names_agree_with_rclpy(name):
     full = name if name.startswith("/") else "/" + name
     assert we_accept(full) == rclpy_accepts(full), full
+
+
+# Message type names: the one check (HTTP side and ROS worker) against rosidl's own rules.
+TYPE_NAMES = ["std_msgs/msg/String", "a/msg/B", "my_pkg2/msg/Foo2Bar", "sensor_msgs/msg/Image",
+              "Std_msgs/msg/String", "STD_MSGS/msg/String", "std_msgs/msg/string", "std_msgs/msg/Str_ing",
+              "std-msgs/msg/X", "_hidden/msg/X", "1pkg/msg/X", "std_msgs/srv/Empty", "std_msgs/String",
+              "std_msgs/msg/", "/msg/String", "std_msgs/msg/String/", "a/b/msg/C", "std_msgs/msg/Bo-ol"]
+
+
+@pytest.mark.parametrize("name", TYPE_NAMES)
+def test_message_types_follow_rosidls_rules(name):
+    pkg, sep, rest = name.partition("/msg/")
+    rosidl = bool(sep) and is_valid_package_name(pkg) and is_valid_message_name(rest)
+    # rosidl also refuses "__" and a trailing "_" in a package name; no installed package has them,
+    # and the ROS worker answers such a name "type-not-installed".
+    assert valid_message_type(name) is rosidl, name
+    assert (MESSAGE_TYPE.fullmatch(name) is not None) is rosidl, name
+
+
+def test_message_type_length_and_kind():
+    assert valid_message_type("a/msg/" + "B" * (256 - 6))
+    assert not valid_message_type("a/msg/" + "B" * (256 - 5))
+    for not_a_string in (None, 5, b"std_msgs/msg/String", ["std_msgs/msg/String"]):
+        assert not valid_message_type(not_a_string)

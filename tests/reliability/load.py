@@ -12,7 +12,7 @@ count is reached and keeps one :class:`Answer` per request.  :class:`HealthProbe
 polls ``/health`` on its own connection all the while.
 
 Checks: :func:`problem` says what is wrong with an answer according to
-``rest-contract.md`` (JSON error bodies with a known ``error_code``, vendor
+the REST contract (medkit's: JSON error bodies with a known ``error_code``, vendor
 errors with their ``vendor_code``, ``Retry-After`` on 503), or None.
 
 Figures: :func:`record` adds one row to :data:`FIGURES`; ``conftest.py``
@@ -51,7 +51,7 @@ ERROR_CODES = {
     "internal-error", "not-implemented", "service-unavailable", "not-responding", "vendor-error",
     "unauthorized", "forbidden", "payload-too-large", "rate-limit-exceeded",
 }
-# vendor_code -> the HTTP status it travels with (ipc/errors.py and rest-contract.md)
+# vendor_code -> the HTTP status it travels with (ipc/errors.py, as medkit sends them)
 VENDOR_CODES = {
     "x-medkit-cold-wait-cap-exceeded": 503,
     "x-medkit-gateway-shutdown": 503,

@@ -94,7 +94,7 @@ def start(gateways, nodes, *flags: str):
     # checks are about faults, so wait until the app is known, and until the worker has noted
     # it in the state its successor reads after a crash.
     poll_until(lambda: gw.get("/apps/fault_pubs").status_code == 200, 30, message="app visible")
-    state = os.path.join(gw.runtime_dir, "pool.json")
+    state = os.path.join(gw.runtime_dir, "restart-state.json")
     poll_until(lambda: "/fault_pubs" in open(state).read(), 10, message="node in the restart state")
     return gw, host
 

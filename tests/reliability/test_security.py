@@ -87,8 +87,8 @@ def test_runtime_dir_socket_and_locks_are_private():
         sock = os.path.join(loose, protocol.SOCKET_NAME)
         assert stat.S_ISSOCK(os.stat(sock).st_mode)
         assert os.stat(sock).st_mode & 0o077 == 0, f"socket is {stat.S_IMODE(os.stat(sock).st_mode):o}"
-        poll_until(lambda: os.path.exists(os.path.join(loose, "pool.json")), 10, message="pool list saved")
-        for name in (protocol.LOCK_NAME, "supervisor.lock", "pool.json"):
+        poll_until(lambda: os.path.exists(os.path.join(loose, "restart-state.json")), 10, message="pool list saved")
+        for name in (protocol.LOCK_NAME, "supervisor.lock", "restart-state.json"):
             path = os.path.join(loose, name)
             assert os.stat(path).st_mode & 0o077 == 0, f"{name} is {stat.S_IMODE(os.stat(path).st_mode):o}"
         others = {n: stat.S_IMODE(os.stat(os.path.join(loose, n)).st_mode) for n in os.listdir(loose)}

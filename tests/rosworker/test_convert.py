@@ -39,10 +39,10 @@ from std_msgs.msg import (
 )
 from unique_identifier_msgs.msg import UUID
 
+from ipc.topics import MESSAGE_TYPE as TYPE_RE
 from rosworker.decode import from_plain
 from rosworker.encode import to_json, to_plain
 from rosworker.msgtypes import (
-    TYPE_RE,
     ConversionError,
     _plan,
     check_type_name,

@@ -241,6 +241,29 @@ def test_hostile_ipc_frames_get_an_error_or_are_dropped_and_the_worker_keeps_ser
         worker.stop()
 
 
+def test_ping_and_stats_are_refused_on_the_work_socket_and_answered_on_the_control_socket():
+    """The control socket is their only home: no in-tree client sends them to the work socket."""
+    worker = RosWorker()
+    ctx = zmq.Context()
+    sock = ctx.socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.connect(protocol.endpoint(worker.runtime_dir))
+    try:
+        for rid, cmd in enumerate(protocol.IMMEDIATE, 1):
+            sock.send(msgpack.packb({"v": 1, "id": rid, "cmd": cmd, "args": {}, "deadline_ms": 1000}))
+            assert sock.poll(5000), f"no answer to {cmd} on the work socket"
+            reply = protocol.unpack(sock.recv(), protocol.MAX_REPLY_FRAME)
+            assert reply["id"] == rid and reply["ok"] is False, reply
+            assert reply["error"]["code"] == "bad-request", reply
+            assert protocol.CONTROL_SOCKET_NAME in reply["error"]["message"]
+        assert worker.call("ping")["pid"] == worker.pid  # the client sends them to the control socket
+        assert "executor" in worker.stats()
+    finally:
+        sock.close()
+        ctx.term()
+        worker.stop()
+
+
 def test_ping_and_stats_never_wait_behind_a_queue_of_short_tasks():
     """120 tasks of 15 ms each once kept ``stats`` waiting 1.8 s: /health said the worker was dead.
 

@@ -195,7 +195,7 @@ def test_pooled_topics_are_subscribed_again_after_a_restart(nodes):
     runtime_dir = worker.runtime_dir
     try:
         worker.sample_data(topic)
-        state = os.path.join(runtime_dir, "pool.json")
+        state = os.path.join(runtime_dir, "restart-state.json")
         poll_until(lambda: os.path.exists(state) and topic in open(state).read(), 5, message="pool saved")
         worker.signal(9)
         worker.proc.wait(10)
@@ -288,7 +288,7 @@ def test_an_undecodable_message_answers_502_and_the_ros_worker_lives_on(nodes, g
     # The failing topic is not in the restart state: a restarted worker leaves it alone.
     # (Saved within 0.25 s of each change: the failing topic may be in a copy saved before its
     # first message failed, but never in one saved after.)
-    state = os.path.join(gw.runtime_dir, "pool.json")
+    state = os.path.join(gw.runtime_dir, "restart-state.json")
     saved = poll_until(lambda: (lambda t: t if good in t and bad not in t else None)(
         json.load(open(state))["topics"]), 5, message="restart state saved without the failing topic")
     assert good in saved and bad not in saved

@@ -334,7 +334,7 @@ def test_hot_topics_are_warm_again_after_a_crash(temperature_pub):
         comp = host_id(gw)
         wait_for_data(gw, comp)
         assert TOPIC in pooled(gw.runtime_dir)
-        state = os.path.join(gw.runtime_dir, "pool.json")
+        state = os.path.join(gw.runtime_dir, "restart-state.json")
         poll_until(lambda: TOPIC in Path(state).read_text(), 15, message="pool list saved")
         old = worker_pid(gw)
         os.kill(old, signal.SIGKILL)
@@ -564,10 +564,10 @@ def test_pool_list_survives_in_the_runtime_dir_only(temperature_pub):
     try:
         comp = host_id(gw)
         wait_for_data(gw, comp)
-        poll_until(lambda: os.path.exists(os.path.join(gw.runtime_dir, "pool.json")), 10,
+        poll_until(lambda: os.path.exists(os.path.join(gw.runtime_dir, "restart-state.json")), 10,
                    message="pool list saved")
         names = set(os.listdir(gw.runtime_dir))
-        assert {"rosworker.sock", "rosworker.lock", "supervisor.lock", "pool.json"} <= names
+        assert {"rosworker.sock", "rosworker.lock", "supervisor.lock", "restart-state.json"} <= names
         for name in names:
             assert os.stat(os.path.join(gw.runtime_dir, name)).st_mode & 0o077 == 0, name
         with open(os.path.join(gw.runtime_dir, "supervisor.lock")) as fh:

@@ -2,30 +2,25 @@
 
 - the topic addressed by ``{data_id}`` (three spellings, one topic);
 - the ``bytes`` query parameter;
-- for ``PUT``: who may publish (``allow_publish``, bearer token) and the body (read and
-  parsed by ``bodies.json_object``, as every JSON body is).
+- for ``PUT``: the body (read and parsed by ``bodies.json_object``, as every JSON body
+  is).  Who may publish is ``auth.py``'s.
 """
 
 from __future__ import annotations
 
-import hmac
-import re
 from typing import Any
 from urllib.parse import unquote_to_bytes, urlsplit
 
 from flask import request
 
 from ipc import protocol
-from ipc.topics import InvalidTopic, normalize_topic
+from ipc.protocol import BYTES_MODES
+from ipc.topics import InvalidTopic, normalize_topic, valid_message_type
 
 from ..errors import ApiError
 from .bodies import json_object
-from .common import config
+from .common import BAD_PERCENT
 
-_BAD_PERCENT = re.compile(r"%(?![0-9A-Fa-f]{2})")
-_MESSAGE_TYPE = re.compile(r"[A-Za-z][A-Za-z0-9_]*/msg/[A-Za-z][A-Za-z0-9_]*")
-MAX_TYPE_LENGTH = 256
-BYTES_MODES = ("array", "base64")
 # Room left in one IPC frame for the envelope around a published message.
 FRAME_SLACK = 64 * 1024
 
@@ -47,7 +42,7 @@ def topic_from_data_id(data_id: str) -> str:
     raw = request.environ.get("RAW_URI") or request.environ.get("REQUEST_URI")
     if raw:
         path = urlsplit(raw).path
-        if _BAD_PERCENT.search(path):
+        if BAD_PERCENT.search(path):
             raise _invalid_topic("the request path contains an invalid percent-encoding", data_id)
         try:
             unquote_to_bytes(path).decode("utf-8")
@@ -72,34 +67,6 @@ def bytes_mode() -> str:
     return mode
 
 
-def authorize_publish() -> None:
-    """403 unless publishing is on; with an API token, 401 without it and 403 with a wrong one."""
-    cfg = config()
-    if not cfg.allow_publish:
-        raise ApiError(403, "forbidden", "Publishing is disabled on this gateway",
-                       {"details": "start the gateway with --allow-publish to enable PUT"})
-    authorize_change()
-
-
-def authorize_change() -> None:
-    """With an API token configured: 401 without it, 403 with a wrong one (else nothing to check).
-
-    Every request that changes the gateway's or the robot's state on a client's behalf asks
-    this (publishing, making, changing and deleting cyclic subscriptions); reads never do.
-    """
-    token = config().api_token
-    if not token:
-        return
-    scheme, _, given = request.headers.get("Authorization", "").partition(" ")
-    given = given.strip()
-    if scheme.lower() != "bearer" or not given:
-        raise ApiError(401, "unauthorized", "Authentication required",
-                       {"details": "send the header 'Authorization: Bearer <token>'"},
-                       headers={"WWW-Authenticate": 'Bearer realm="sovd-gateway"'})
-    if not hmac.compare_digest(given.encode("utf-8", "surrogateescape"), token.encode("utf-8")):
-        raise ApiError(403, "forbidden", "Invalid API token")
-
-
 def _field_error(message: str, field: str) -> ApiError:
     return ApiError(400, "invalid-request", message, {"field": field})
 
@@ -116,8 +83,7 @@ def publish_body() -> tuple[str, dict[str, Any]]:
     if not isinstance(body["data"], dict):
         raise _field_error("data: must be an object", "data")
     type_name = body["type"]
-    if len(type_name) > MAX_TYPE_LENGTH or type_name.count("/") != 2 \
-            or not _MESSAGE_TYPE.fullmatch(type_name):
+    if not valid_message_type(type_name):
         raise ApiError(400, "invalid-parameter", "Invalid message type format",
                        {"details": "Message type should be in format: package/msg/Type",
                         "type": type_name[:300]})
