@@ -80,6 +80,25 @@ HEARTBEAT_EVERY = 1.0
 SAVE_WAIT = 1.0     # seconds a changed registry waits for the writer before it is answered anyway
 
 
+def wall_minus_monotonic_ns() -> int:
+    """The wall clock minus the monotonic one, in ns: what turns a deadline into ``expires_at``.
+
+    The two clocks are read as a pair, and again when the thread was preempted between the
+    reads (a loaded robot): a pair read a scheduler slice apart would shift a displayed or
+    restored expiry by that slice.
+    """
+    best = None
+    for _ in range(3):
+        before = time.monotonic_ns()
+        wall = time.time_ns()
+        after = time.monotonic_ns()
+        if best is None or after - before < best[0]:
+            best = (after - before, wall - (before + after) // 2)
+        if after - before < 200_000:
+            break
+    return best[1]
+
+
 @dataclass
 class Subscription:
     id: str
@@ -97,7 +116,7 @@ class Subscription:
     @property
     def expires_at_ns(self) -> int:
         """The wall-clock time of ``deadline``, for display and the restart state only."""
-        return time.time_ns() + int((self.deadline - time.monotonic()) * 1e9)
+        return wall_minus_monotonic_ns() + int(self.deadline * 1e9)
 
     def wire(self) -> dict[str, Any]:
         """What the ``sub_*`` commands answer (the HTTP side makes the SOVD body of it)."""
@@ -171,7 +190,7 @@ class StreamRegistry:
 
     def restore(self, saved: list[dict[str, Any]]) -> None:
         """Subscriptions of a previous worker (restart state); the expired ones are dropped."""
-        now, mono = time.time_ns(), time.monotonic()
+        offset = wall_minus_monotonic_ns()
         for item in saved:
             item = dict(item)
             expires_at_ns = item.pop("expires_at_ns", None)
@@ -182,8 +201,8 @@ class StreamRegistry:
                 continue
             if not isinstance(expires_at_ns, int) or isinstance(expires_at_ns, bool):
                 continue
-            sub.deadline = mono + (expires_at_ns - now) / 1e9  # the wall clock is the one both workers share
-            if expires_at_ns > now and sub.interval in events.INTERVALS \
+            sub.deadline = (expires_at_ns - offset) / 1e9  # the wall clock is the one both workers share
+            if sub.deadline > time.monotonic() and sub.interval in events.INTERVALS \
                     and len(self.subs) < self.max_subscriptions and self._held_by(sub.client) < self.max_per_client:
                 self._add(sub)
         if self.subs:
