@@ -21,6 +21,11 @@ cold topic the timeout is at most ``COLD_POLL`` and each cold subscription is
 tried (``take``) on every round; so no rcl wait set and no guard condition
 are needed, and a pooled topic costs nothing between reads.
 
+Pieces that wait on rclpy client handles (services, actions, parameters) register
+with :meth:`RosExecutor.add_poller`: while one has work open, the loop wakes every
+``COLD_POLL`` s and lets it ``take`` what came; no rclpy executor, no spin, nothing
+blocks this thread on a future.
+
 Timers (graph polling, idle sweep, cold-wait deadlines, stream ticks,
 publishers waiting for their subscribers) run on the same thread from a heap.
 Another thread hands work to this one with :meth:`RosExecutor.post` (the
@@ -142,6 +147,9 @@ class RosExecutor:
         self._cold_entries: Callable[[], list] = lambda: []
         self._on_ready: Callable[[Any], None] = lambda entry: None
         self.on_idle: Callable[[], None] = lambda: None
+        # Pieces that wait on rclpy futures or handles (service, action, parameter clients):
+        # (name, active, poll), see add_poller.
+        self._pollers: list[tuple[str, Callable[[], bool], Callable[[], None]]] = []
         self._posted: collections.deque[Callable[[], None]] = collections.deque()
 
     # ---- any thread -------------------------------------------------------------------
@@ -188,6 +196,20 @@ class RosExecutor:
         """
         self._cold_entries = entries
         self._on_ready = on_ready
+
+    def add_poller(self, name: str, active: Callable[[], bool], poll: Callable[[], None]) -> None:
+        """While ``active()`` is true, ``poll()`` runs on every round and the loop wakes every ``COLD_POLL`` s.
+
+        For pieces that wait on something the loop's sockets cannot wake it for: rclpy
+        client handles (a service response, an action's goal, feedback and status) are
+        read with ``take`` by ``poll``, as the pool reads cold topics.  ``active`` is
+        asked every round, so it must be cheap (a length); an idle piece costs nothing.
+        ``name`` labels a failure of ``poll`` in the log (contained like a timer's).
+        """
+        self._pollers.append((f"polling {name}", active, poll))
+
+    def _polling(self) -> list[tuple[str, Callable[[], bool], Callable[[], None]]]:
+        return [p for p in self._pollers if p[1]()] if self._pollers else []
 
     def bind(self) -> None:
         """Bind the work socket (call on the ROS thread before :meth:`run`)."""
@@ -358,7 +380,8 @@ class RosExecutor:
                 break
             timeout = 0.0 if self._queue else self._next_timeout()
             cold = bool(self._cold_entries())
-            if cold:
+            polling = self._polling()
+            if cold or polling:
                 timeout = min(timeout, COLD_POLL)
             events = dict(self._poller.poll(math.ceil(timeout * 1000)))
             if self._wake_r in events:
@@ -370,6 +393,8 @@ class RosExecutor:
             self._run_timers()
             if cold:
                 self._wake_cold()
+            for where, _, poll in polling:
+                self.guarded(where, poll)
             self.drain()
             if self.stats.degraded and not self._queue:
                 self.stats.degraded = False  # idle again: the episode is over

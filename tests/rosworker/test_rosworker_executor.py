@@ -369,3 +369,44 @@ def test_a_failed_qos_rebuild_keeps_the_old_subscription(tmp_path):
     finally:
         executor.close()
         ctx.term()
+
+
+def test_a_poller_runs_every_round_only_while_active_and_a_failure_is_contained(tmp_path):
+    """add_poller: polled at the cold-poll pace while active; idle costs nothing; errors counted."""
+    from rosworker.executor import COLD_POLL, RosExecutor
+    from rosworker.stats import Stats
+
+    stats = Stats(pool_cap=4, cold_wait_cap=4, watchdog_threshold_ms=5000)
+    ctx = zmq.Context()
+    executor = RosExecutor(ctx, str(tmp_path), stats, 16)
+    calls: list[float] = []
+    idle_calls: list[float] = []
+    done = threading.Event()
+
+    def poll():
+        calls.append(time.monotonic())
+        if len(calls) == 3:
+            raise RuntimeError("a failing poll is contained")
+        if len(calls) >= 20:
+            done.set()
+
+    executor.add_poller("test", lambda: not done.is_set(), poll)
+    executor.add_poller("idle", lambda: False, lambda: idle_calls.append(1))
+    executor.bind()
+    thread = threading.Thread(target=executor.run, daemon=True)
+    started = time.monotonic()
+    thread.start()
+    try:
+        assert done.wait(10), f"only {len(calls)} polls"
+        # 20 polls paced by COLD_POLL, not by the 1 s idle wait (a generous bound that catches a hang)
+        assert calls[19] - started < 20 * COLD_POLL + 5.0
+        assert idle_calls == []
+        assert stats.loop_errors == 1
+        count = len(calls)
+        time.sleep(0.05)
+        assert len(calls) == count  # inactive: not polled again
+    finally:
+        executor.stop()
+        thread.join(10)
+        executor.close()
+        ctx.term()
