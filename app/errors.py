@@ -46,6 +46,15 @@ IPC_ANSWERS: dict[str, tuple[int, str, str | None, int | None]] = {
     "unavailable": (503, "vendor-error", "x-medkit-ros-worker-unavailable", 2),
     "subscriptions-full": (503, "service-unavailable", None, 5),
     "deadline-exceeded": (504, "not-responding", None, None),
+    # operations: services and actions
+    "invalid-operation-data": (400, "invalid-parameter", None, None),
+    "type-introspection-failed": (400, "vendor-error", "x-medkit-ros2-type-introspection-failed", None),
+    "service-unavailable": (503, "vendor-error", "x-medkit-ros2-service-unavailable", 1),
+    "action-unavailable": (503, "vendor-error", "x-medkit-ros2-action-unavailable", 1),
+    "action-rejected": (400, "vendor-error", "x-medkit-ros2-action-rejected", None),
+    "not-responding": (504, "not-responding", None, None),
+    "no-such-execution": (404, "resource-not-found", None, None),
+    "goals-full": (503, "service-unavailable", None, 5),
 }
 
 # HTTP status -> SOVD error_code for errors that Werkzeug raises.

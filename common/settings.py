@@ -166,6 +166,16 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("restart_window", float, 60.0, "seconds over which restarts are counted", 1, 86400),
     Setting("shutdown_grace", float, 5.0, "seconds in-flight HTTP requests get at shutdown", 0.5, 120),
     Setting("debug_commands", bool, False, "enable test-only IPC commands (never in production)"),
+    # --- operations (README "Operations: services and actions") ---
+    Setting("allow_operations", bool, False, "allow POST/PUT/DELETE on .../operations/.../executions "
+            "(calling ROS services, sending and cancelling action goals)"),
+    Setting("service_call_timeout", float, 10.0, "seconds a service call or an action's goal or cancel "
+            "request waits for the server's answer (504 past it)", 1, 3600),
+    Setting("max_operation_clients", int, 64, "LRU cap on pooled service clients, and on pooled action "
+            "clients", 1, 1024),
+    Setting("max_goals_per_action", int, 100, "goals kept per action (the oldest finished is dropped first)",
+            1, 10000),
+    Setting("goal_retention", float, 600.0, "seconds a finished goal stays readable", 1, 604800),
 )
 
 BY_NAME = {s.name: s for s in SETTINGS}

@@ -48,6 +48,7 @@ SECTIONS: dict[str, str | None] = {
     "executor": "x-medkit-subscription-executor",
     "streams": "x-medkit-streams",
     "details": None,
+    "operations": "x-medkit-operations",   # operations: services and actions
 }
 
 
@@ -150,6 +151,21 @@ COUNTERS: tuple[Counter, ...] = (
       label="command"),
     C("details", "ticks", BY, "Rounds of the stream timers, by interval", "sovd_ros_stream_ticks",
       label="interval"),
+    # ---- x-medkit-operations (operations: services and actions) ----
+    C("operations", "operation_service_clients", GAUGE, "Pooled service clients now",
+      "sovd_ros_operation_service_clients"),
+    C("operations", "operation_action_clients", GAUGE, "Pooled action clients now",
+      "sovd_ros_operation_action_clients"),
+    C("operations", "operation_calls_in_flight", GAUGE, "Service calls waiting for their server's answer now",
+      "sovd_ros_operation_calls_in_flight"),
+    C("operations", "operation_calls_total", COUNTER, "Service calls made", "sovd_ros_operation_calls"),
+    C("operations", "operation_goals_tracked", GAUGE, "Action goals kept (running and finished) now",
+      "sovd_ros_operation_goals_tracked"),
+    C("operations", "operation_goals_total", COUNTER, "Action goals sent", "sovd_ros_operation_goals"),
+    C("operations", "operation_goals_rejected", COUNTER, "Action goals the server rejected",
+      "sovd_ros_operation_goals_rejected"),
+    C("operations", "operation_timeouts", COUNTER, "Service calls, goal and cancel requests not answered "
+      "within service_call_timeout", "sovd_ros_operation_timeouts"),
 )
 del C
 

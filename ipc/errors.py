@@ -36,6 +36,15 @@ CODES: frozenset[str] = frozenset({
     "unavailable",
     "subscriptions-full",
     "deadline-exceeded",
+    # operations: services and actions
+    "invalid-operation-data",
+    "type-introspection-failed",
+    "service-unavailable",
+    "action-unavailable",
+    "action-rejected",
+    "not-responding",
+    "no-such-execution",
+    "goals-full",
 })
 
 

@@ -56,6 +56,7 @@ EXIT_CANNOT_BOOT = 3
 LOCK_WAIT = 10.0     # seconds a restarted worker waits for the runtime dir's lock
 LOCK_POLL = 0.05
 STATE_SAVE_EVERY = 0.25  # seconds; only written when it changed
+OPERATIONS_CHECK_EVERY = 1.0  # seconds between the operations' graph checks and sweeps
 STATE_FLUSH_WAIT = 2.0   # seconds the restart state's writer gets to finish at shutdown
 REWARM_FOR = 30.0    # seconds to keep trying to re-subscribe topics pooled before a restart
 REWARM_RETRY = 0.25
@@ -214,6 +215,14 @@ class Worker:
                                  save=save_state)
         commands = Commands(pool, graph, publishers, streams, sample_timeout=cfg.sample_timeout,
                             debug=cfg.debug_commands)
+        # Operations (services and actions): their commands, upkeep timers and restart record.
+        from .operations import Operations
+        operations = Operations(node, executor, stats, max_clients=cfg.max_operation_clients,
+                                idle=cfg.idle_safety_net, call_timeout=cfg.service_call_timeout,
+                                max_goals=cfg.max_goals_per_action, retention=cfg.goal_retention,
+                                restore=self.restart)
+        commands.handlers.update(operations.handlers)
+        operations.repeat(OPERATIONS_CHECK_EVERY)
         # What the executor's loop runs: the queued commands, and a look at each topic that
         # callers wait on (its first message) on every round.
         executor.serve(commands.handlers)
@@ -262,6 +271,7 @@ class Worker:
             state.close(STATE_FLUSH_WAIT)
             executor.run_posted()
             executor.guarded("the pool's shutdown", pool.shutdown)
+            executor.guarded("the operations' shutdown", operations.shutdown)  # operations
             executor.guarded("the publishers' shutdown", publishers.shutdown)
             executor.linger()
         finally:

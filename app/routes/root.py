@@ -23,7 +23,7 @@ SOVD_VERSION = openapi.SOVD_VERSION
 
 # medkit's capabilities that this gateway does not serve and whose routes are not in
 # unimplemented.ROUTES (later issues implement them).
-NOT_SERVED = ("operations", "async_actions", "configurations", "faults", "logs", "triggers")
+NOT_SERVED = ("configurations", "faults", "logs", "triggers")
 
 
 
@@ -46,6 +46,8 @@ def root():
             # those of NOT_SERVED answer 404 until the issues that implement them.
             **{name: False for name in NOT_SERVED},
             **unimplemented.capabilities(),
+            # operations: services and actions (executing them needs allow_operations)
+            "operations": True, "async_actions": True,
         },
     })
 

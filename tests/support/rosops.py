@@ -1,0 +1,119 @@
+"""A real ROS 2 node with service and action servers, in its own process, for the operation tests.
+
+Run as ``python -m tests.support.rosops '<json spec>'``::
+
+    {"node": "calib", "namespace": "/arm",
+     "services": [{"name": "calibrate", "type": "std_srvs/srv/Trigger"},
+                  {"name": "echo", "type": "test_msgs/srv/BasicTypes"}],
+     "actions": [{"name": "fib", "type": "test_msgs/action/Fibonacci", "step": 0.1}],
+     "spin": true}
+
+Services answer at once: a ``Trigger`` with ``success: true`` and ``message: "called <n>"``,
+any other type echoes every request field that the response has (``BasicTypes``, ``Arrays``).
+The Fibonacci action server computes ``order`` numbers, one every ``step`` seconds, with
+feedback after each; ``order < 0`` is rejected, ``order == 13`` aborts after its first step,
+and every cancel request is accepted (the goal ends ``canceled`` at its next step).  With
+``"spin": false`` the servers exist but nothing is ever answered (a server that hangs).
+
+Prints ``READY`` once every server exists.  SIGTERM destroys the node cleanly.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import sys
+import time
+
+from bench import rosmain
+
+ABORT_ORDER = 13
+
+
+def _load(type_name: str):
+    pkg, kind, name = type_name.split("/")
+    return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
+
+
+def main() -> None:
+    spec = json.loads(sys.argv[1])
+    import rclpy
+    from rclpy.action import ActionServer, CancelResponse, GoalResponse
+    from rclpy.callback_groups import ReentrantCallbackGroup
+    from rclpy.executors import MultiThreadedExecutor
+
+    node, stop = rosmain.start(spec["node"], namespace=spec.get("namespace", "/"))
+    group = ReentrantCallbackGroup()
+    calls = {"n": 0}
+
+    def serve(srv_type):
+        def callback(request, response):
+            calls["n"] += 1
+            fields = response.get_fields_and_field_types()
+            if "success" in fields and "message" in fields and not request.get_fields_and_field_types():
+                response.success = True
+                response.message = f"called {calls['n']}"
+                return response
+            for name in fields:
+                if hasattr(request, name):
+                    setattr(response, name, getattr(request, name))
+            return response
+        return callback
+
+    keep = []
+    for item in spec.get("services", []):
+        cls = _load(item["type"])
+        keep.append(node.create_service(cls, item["name"], serve(cls), callback_group=group))
+
+    for item in spec.get("actions", []):
+        cls = _load(item["type"])
+        step = float(item.get("step", 0.1))
+
+        def execute(goal_handle, cls=cls, step=step):
+            order = goal_handle.request.order
+            feedback = cls.Feedback()
+            sequence = [0, 1]
+            for i in range(1, max(1, order)):
+                deadline = time.monotonic() + step
+                while time.monotonic() < deadline:
+                    if goal_handle.is_cancel_requested:
+                        goal_handle.canceled()
+                        result = cls.Result()
+                        result.sequence = sequence
+                        return result
+                    time.sleep(0.01)
+                if order == ABORT_ORDER:
+                    goal_handle.abort()
+                    return cls.Result()
+                sequence.append(sequence[i] + sequence[i - 1])
+                feedback.sequence = sequence
+                goal_handle.publish_feedback(feedback)
+            goal_handle.succeed()
+            result = cls.Result()
+            result.sequence = sequence
+            return result
+
+        keep.append(ActionServer(
+            node, cls, item["name"], execute_callback=execute, callback_group=group,
+            goal_callback=lambda request: GoalResponse.REJECT if request.order < 0 else GoalResponse.ACCEPT,
+            cancel_callback=lambda _handle: CancelResponse.ACCEPT))
+
+    print("READY", flush=True)
+    if not spec.get("spin", True):
+        stop.wait()
+        node.destroy_node()
+        rclpy.try_shutdown()
+        return
+    executor = MultiThreadedExecutor(num_threads=32)
+    executor.add_node(node)
+    try:
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=0.05)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()
