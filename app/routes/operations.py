@@ -32,7 +32,7 @@ from .common import check_entity_id, config, json_response, lookup
 bp = Blueprint("operations", __name__, url_prefix=API_BASE)
 
 ENTITY = "/<any(components,apps,functions):collection>/<entity_id>"
-OPERATION = ENTITY + "/operations/<op_id>"
+OPERATION = ENTITY + "/operations/<path:op_id>"
 EXECUTION = OPERATION + "/executions/<exec_id>"
 # The IPC deadline of a call, goal or cancel: the service call timeout plus this margin.
 CALL_IPC_MARGIN_S = 2.0

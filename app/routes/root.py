@@ -122,6 +122,9 @@ def health():
         "x-medkit-data-provider": provider,
         "x-medkit-subscription-executor": executor,
         "x-medkit-streams": streams,
+        # operations: service and action clients, calls in flight, goals, timeouts (ipc/counters.py)
+        "x-medkit-operations": {**counters.health_defaults("operations", config()),
+                                **((stats or {}).get("operations") or {})},
     })
 
 

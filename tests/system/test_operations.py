@@ -249,10 +249,10 @@ def test_twenty_concurrent_goals(gw):
 def _sessions_on_two_workers(gw) -> tuple[requests.Session, requests.Session]:
     """Two keep-alive connections served by different HTTP workers."""
     first = requests.Session()
-    pid = first.get(gw.url + "/x-sovd-debug/worker", timeout=10).json()["pid"]
+    pid = first.get(gw.api + "/x-sovd-debug/worker", timeout=10).json()["pid"]
     for _ in range(100):
         other = requests.Session()
-        if other.get(gw.url + "/x-sovd-debug/worker", timeout=10).json()["pid"] != pid:
+        if other.get(gw.api + "/x-sovd-debug/worker", timeout=10).json()["pid"] != pid:
             return first, other
         other.close()
     raise AssertionError("every new connection landed on the same HTTP worker")
@@ -275,9 +275,14 @@ def test_an_execution_is_read_and_cancelled_through_the_other_http_worker(gw):
 
 
 def test_health_counts_operations(gw):
+    before = gw.get("/health").json()["x-medkit-operations"]
+    assert post(gw, ARM + "/operations/calibrate/executions", {}).status_code == 200
+    wait_done(gw, run_goal(gw, 2))
     section = gw.get("/health").json()["x-medkit-operations"]
     assert section["operation_service_clients"] >= 1 and section["operation_action_clients"] >= 1
-    assert section["operation_calls_total"] >= 50 and section["operation_goals_total"] >= 20
+    assert section["operation_calls_total"] == before["operation_calls_total"] + 1
+    assert section["operation_goals_total"] == before["operation_goals_total"] + 1
+    assert section["operation_goals_tracked"] >= 1 and section["operation_calls_in_flight"] == 0
     metrics = requests.get(gw.url + "/metrics", timeout=10).text
     assert "sovd_ros_operation_calls_total" in metrics
 
