@@ -352,8 +352,12 @@ def _entity_paths(collection: str) -> dict[str, Any]:
             "put": put_op,
         },
         base + "/data-categories": {"get": _op(f"list{title}DataCategories", "Data", "Data categories",
-                                               None, not_impl, parameters=[id_param])},
-        base + "/data-groups": {"get": _op(f"list{title}DataGroups", "Data", "Data groups", None, not_impl,
+                                               _ok("DataCategoryList", "medkit's answer; never sent by this "
+                                                   "gateway, which answers 501"), not_impl,
+                                               parameters=[id_param])},
+        base + "/data-groups": {"get": _op(f"list{title}DataGroups", "Data", "Data groups",
+                                           _ok("DataGroupList", "medkit's answer; never sent by this "
+                                               "gateway, which answers 501"), not_impl,
                                            parameters=[id_param])},
     }
 
@@ -495,11 +499,117 @@ def _not_implemented_paths() -> dict[str, Any]:
         feature = unimplemented.FEATURES[route.feature]
         op_id = route.op.replace("{Kind}", unimplemented.KINDS[collection] if collection else "")
         out.setdefault(path, {})[route.method.lower()] = _op(
-            op_id, feature.tag, route.summary + " (not implemented)", None,
+            op_id, feature.tag, route.summary + " (not implemented)",
+            {"description": "medkit's answer; never sent by this gateway, which answers 501",
+             "content": {"application/json": {"schema": OBJ}}},
             ("501", f"Not implemented on this gateway (`not-implemented`, \"{feature.message}\", parameters "
                     f"`feature`: `{route.feature}`), whatever the ids"),
             parameters=params)
     return out
+
+# ---- operations: services and actions (app/routes/operations.py) ----------------------------
+_ROS2_OP = _obj(["type", "kind"], service=STR, action=STR, type=STR, kind={"enum": ["service", "action"]})
+SCHEMAS.update({
+    "OperationItem": _obj(
+        ["id", "name", "proximity_proof_required", "asynchronous_execution", "x-medkit"],
+        id={**STR, "description": "the short name; `<member_id>:<name>` when several members of a "
+                                  "component or function expose it; the ROS path without its leading "
+                                  "slash when one member exposes it at two paths"},
+        name=STR, proximity_proof_required={"type": "boolean"}, asynchronous_execution={"type": "boolean"},
+        X_medkit=_obj(["ros2", "entity_id", "source"], ros2=_ROS2_OP, entity_id=STR, source=STR,
+                      member_ids=STR_LIST,
+                      type_info={**OBJ, "description": "JSON schemas of request and response (service) "
+                                                       "or goal, result and feedback (action), and "
+                                                       "their `default_value`s"})),
+    "OperationList": _obj(["items"], items={"type": "array", "items": ref("OperationItem")},
+                          X_medkit=_obj([], total_count=INT)),
+    "OperationDetail": _obj(["item"], item=ref("OperationItem")),
+    "ExecutionRequest": _obj([], parameters={**OBJ, "description": "the request (service) or goal "
+                                                                   "(action); `request` and `goal` are "
+                                                                   "accepted too"},
+                             type={**STR, "description": "override of the interface type"}),
+    "OperationExecutionResult": _obj(["parameters"], parameters={**OBJ, "description": "the response"}),
+    "ExecutionStarted": _obj(["id", "status"], id={**STR, "pattern": "^[0-9a-f]{32}$"},
+                             status={"enum": ["pending", "running", "completed", "failed"]}),
+    "ExecutionList": _obj(["items"], items={"type": "array", "items": _obj(["id"], id=STR)}),
+    "OperationExecution": _obj(
+        ["status", "capability", "x-medkit"],
+        status={"enum": ["pending", "running", "completed", "failed"]}, capability=STR,
+        parameters={**OBJ, "description": "the result once the goal is done, else its latest feedback"},
+        X_medkit=_obj(["goal_id", "ros2_status", "ros2"], goal_id=STR,
+                      ros2_status={"enum": ["accepted", "executing", "canceling", "succeeded", "canceled",
+                                            "aborted", "unknown"]},
+                      ros2=_obj(["action", "type"], action=STR, type=STR), feedback=OBJ, result=OBJ,
+                      message={**STR, "description": "why a goal reads `unknown` (the ROS worker "
+                                                     "restarted, or the action server left)"})),
+    "ExecutionUpdateRequest": _obj(["capability"], capability={**STR, "description": "only `stop`"}),
+    "DataCategoryList": _obj(["items"], items={"type": "array", "items": OBJ}),
+    "DataGroupList": _obj(["items"], items={"type": "array", "items": OBJ}),
+})
+SCHEMAS["HealthStatus"]["properties"]["x-medkit-operations"] = _obj(
+    list(counters.health_keys("operations")), **_counter_props("operations"))
+_OP_ERRORS = {
+    "400": ("A request or goal that does not fit the type (`invalid-parameter`, naming the field), an "
+            "ambiguous operation id (`invalid-request`, parameters `operation_ids`), an unknown type "
+            "(`x-medkit-ros2-type-introspection-failed`), a rejected goal or cancel "
+            "(`x-medkit-ros2-action-rejected`, parameters `return_code` for a cancel), or an unsupported "
+            "capability (`invalid-parameter`)"),
+    "401": "An API token is configured and the request has none (`unauthorized`)",
+    "403": "Operations are disabled (`--allow-operations` not given) or the token is wrong (`forbidden`)",
+    "404": ("Unknown entity (`entity-not-found`), operation (`operation-not-found`), member or execution "
+            "(`resource-not-found`)"),
+    "409": "`execute` on a running goal (`precondition-not-fulfilled`)",
+    "503": ("No server (`x-medkit-ros2-service-unavailable`, `x-medkit-ros2-action-unavailable`), too many "
+            "goals kept for the action (`service-unavailable`), or the ROS worker is down; retry after "
+            "`Retry-After` seconds"),
+    "504": ("The server did not answer within `service_call_timeout` (`not-responding`): the outcome is "
+            "unknown"),
+}
+
+
+def _operation_paths(collection: str) -> dict[str, Any]:
+    title, param = _title(collection), PARAM_NAMES[collection]
+    base = f"/{collection}/{{{param}}}/operations"
+    op_param = {"name": "operation_id", "in": "path", "required": True, "schema": STR}
+    exec_param = {"name": "execution_id", "in": "path", "required": True, "schema": STR}
+    errs = [(k, v) for k, v in _OP_ERRORS.items()]
+    reads = [e for e in errs if e[0] in ("400", "404", "503", "504")]
+    writes = [e for e in errs if e[0] != "409"]
+    secured = {"security": [{"bearerAuth": []}, {}]}
+
+    def body(schema: str) -> dict[str, Any]:
+        return {"required": True, "content": {"application/json": {"schema": ref(schema)}}}
+
+    started = {"description": "Goal accepted (action); `Location` names the execution",
+               "headers": {"Location": {"schema": STR}},
+               "content": {"application/json": {"schema": ref("ExecutionStarted")}}}
+    create = _op(f"create{title}Execution", "Operations", "Call a service (200) or send an action goal "
+                 "(202)", _ok("OperationExecutionResult", "Service response"), *writes, *BODY_ERRORS,
+                 parameters=[_id_param(collection), op_param], requestBody=body("ExecutionRequest"), **secured)
+    create["responses"] = {"202": started, **create["responses"]}
+    update = _op(f"update{title}Execution", "Operations", "Stop a goal (`capability: stop`)", None,
+                 *errs, *BODY_ERRORS, parameters=[_id_param(collection), op_param, exec_param],
+                 requestBody=body("ExecutionUpdateRequest"), **secured)
+    update["responses"] = {"202": {**started, "description": "Cancel accepted"}, **update["responses"]}
+    cancel = _op(f"cancel{title}Execution", "Operations", "Cancel a goal", None, *writes,
+                 parameters=[_id_param(collection), op_param, exec_param], **secured)
+    cancel["responses"] = {"204": {"description": "Cancel accepted"}, **cancel["responses"]}
+    return {
+        base: {"get": _op(f"list{title}Operations", "Operations", "Services and actions",
+                          _ok("OperationList"), *reads, parameters=[_id_param(collection)])},
+        base + "/{operation_id}": {"get": _op(f"get{title}Operation", "Operations", "One operation",
+                                              _ok("OperationDetail"), *reads,
+                                              parameters=[_id_param(collection), op_param])},
+        base + "/{operation_id}/executions": {
+            "get": _op(f"list{title}Executions", "Operations", "An action's goals, newest first",
+                       _ok("ExecutionList"), *reads, parameters=[_id_param(collection), op_param]),
+            "post": create},
+        base + "/{operation_id}/executions/{execution_id}": {
+            "get": _op(f"get{title}Execution", "Operations", "A goal's status, feedback and result",
+                       _ok("OperationExecution"), *reads, parameters=[_id_param(collection), op_param,
+                                                                        exec_param]),
+            "put": update, "delete": cancel},
+    }
 
 
 @lru_cache(maxsize=1)
@@ -521,6 +631,8 @@ def _document() -> dict[str, Any]:
     paths.update(_docs_paths())
     paths.update(_not_implemented_paths())
     paths["/metrics"] = {"get": METRICS_OP}
+    for collection in ("apps", "components", "functions"):  # operations: services and actions
+        paths.update(_operation_paths(collection))
     return {
         "openapi": "3.1.0",
         "info": {"title": "sovd-gateway", "version": "1.0.0", "x-sovd-version": SOVD_VERSION,
@@ -531,6 +643,8 @@ def _document() -> dict[str, Any]:
                  {"name": "Discovery", "description": "Entity discovery and hierarchy navigation"},
                  {"name": "Data", "description": "Read and write ROS 2 topic data"},
                  {"name": "Subscriptions", "description": "Cyclic subscriptions: live data over SSE"},
+                 {"name": "Operations", "description": "ROS 2 services and actions (operations: services "
+                                                       "and actions)"},
                  *({"name": f.tag, "description": f"Not implemented: 501 ({f.message})"}
                    for f in unimplemented.FEATURES.values())],
         "paths": paths,

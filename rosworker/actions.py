@@ -43,6 +43,13 @@ from .stats import Stats
 
 log = logging.getLogger("sovd.rosworker.actions")
 
+# A new client whose server shows up waits this long more before its first request: the server's
+# reply writer may not have matched the client's reader yet (rclpy only tells about the request
+# side), and a reply sent before that is lost.
+SETTLE = 0.25
+# Goal requests one client has out at once; more wait in line.  A server's request reader keeps
+# the services' default history (10): a burst beyond it is dropped at the server, unanswered.
+MAX_IN_FLIGHT = 8
 MATCH_WAIT = 1.0      # seconds a goal waits for a new client to match its server before it is 503
 SERVER_GONE = 2.0     # seconds a running goal's server may be missing before the goal is failed
 # action_msgs/msg/GoalStatus codes -> medkit's ros2_status words
@@ -96,7 +103,7 @@ class Goal:
 
 
 class Pooled:
-    __slots__ = ("path", "type_name", "action", "client", "last_used", "goals", "sends", "cancels",
+    __slots__ = ("path", "type_name", "action", "client", "last_used", "ready_since", "goals", "sends", "cancels",
                  "results", "waiting")
 
     def __init__(self, path: str, type_name: str, action: type, client):
@@ -105,11 +112,20 @@ class Pooled:
         self.action = action
         self.client = client
         self.last_used = time.monotonic()
+        self.ready_since: float | None = None   # when the server was first seen matched
         self.goals: collections.OrderedDict[str, Goal] = collections.OrderedDict()
         self.sends: dict[int, tuple[Task, Goal, float]] = {}
         self.cancels: dict[int, tuple[Task, Goal, float]] = {}
         self.results: dict[int, Goal] = {}
         self.waiting: list[tuple[Task, Any, Goal, float, float]] = []
+
+    def ready(self, now: float) -> bool:
+        """The server is there and the client has been matched to it for SETTLE seconds."""
+        if self.ready_since is None:
+            if not self.client.server_is_ready():
+                return False
+            self.ready_since = now
+        return now - self.ready_since >= SETTLE
 
     @property
     def handle(self):
@@ -198,7 +214,7 @@ class ActionClients:
         goal = Goal(goal_uuid, path, type_name, entity_id)
         now = time.monotonic()
         pooled.last_used = now
-        if pooled.client.server_is_ready():
+        if pooled.ready(now) and not pooled.waiting and len(pooled.sends) < MAX_IN_FLIGHT:
             self._send_goal(pooled, task, request, goal, now + timeout)
         else:
             pooled.waiting.append((task, request, goal, now + timeout, now + min(MATCH_WAIT, timeout)))
@@ -285,12 +301,17 @@ class ActionClients:
         impl = pooled.action.Impl
         handle = pooled.handle
         if pooled.waiting:
-            ready = pooled.client.server_is_ready()
+            ready = pooled.ready(now)
             still = []
             for task, request, goal, deadline, ready_by in pooled.waiting:
-                if ready:
+                if ready and len(pooled.sends) < MAX_IN_FLIGHT and now < deadline:
                     self._send_goal(pooled, task, request, goal, deadline)
-                elif now >= ready_by:
+                elif now >= deadline:
+                    self.stats.operation_timeouts += 1
+                    task.fail(IpcError("not-responding", f"The goal for {pooled.path} waited in line for the "
+                                                         "whole service call timeout; it was not sent",
+                                       {"action": pooled.path}))
+                elif now >= ready_by and pooled.ready_since is None:
                     task.fail(IpcError("action-unavailable", f"No server of {pooled.path} is available",
                                        {"action": pooled.path}))
                 else:

@@ -31,11 +31,18 @@ from .stats import Stats
 
 log = logging.getLogger("sovd.rosworker.services")
 
+# A new client whose server shows up waits this long more before its first request: the server's
+# reply writer may not have matched the client's reader yet (rclpy only tells about the request
+# side), and a reply sent before that is lost.
+SETTLE = 0.25
+# Requests one client has out at once; more wait in line.  A server's request reader keeps the
+# services' default history (10): a burst beyond it is dropped at the server, unanswered.
+MAX_IN_FLIGHT = 8
 MATCH_WAIT = 1.0   # seconds a call waits for a new client to match its server before it is 503
 
 
 class Pooled:
-    __slots__ = ("path", "type_name", "srv", "client", "last_used", "calls", "waiting")
+    __slots__ = ("path", "type_name", "srv", "client", "last_used", "ready_since", "calls", "waiting")
 
     def __init__(self, path: str, type_name: str, srv: type, client):
         self.path = path
@@ -43,8 +50,17 @@ class Pooled:
         self.srv = srv
         self.client = client
         self.last_used = time.monotonic()
+        self.ready_since: float | None = None   # when the server was first seen matched
         self.calls: dict[int, tuple[Task, float]] = {}   # sequence number -> (task, deadline)
         self.waiting: list[tuple[Task, Any, float, float]] = []  # (task, request, deadline, ready by)
+
+    def ready(self, now: float) -> bool:
+        """The server is there and the client has been matched to it for SETTLE seconds."""
+        if self.ready_since is None:
+            if not self.client.service_is_ready():
+                return False
+            self.ready_since = now
+        return now - self.ready_since >= SETTLE
 
 
 class ServiceClients:
@@ -91,7 +107,7 @@ class ServiceClients:
         self.in_flight += 1
         self.stats.operation_calls_in_flight = self.in_flight
         self.stats.operation_calls_total += 1
-        if pooled.client.service_is_ready():
+        if pooled.ready(now) and not pooled.waiting and len(pooled.calls) < MAX_IN_FLIGHT:
             self._send(pooled, task, request, now + timeout)
         else:
             # A new client has not matched its server yet (or there is none): wait a moment.
@@ -112,12 +128,18 @@ class ServiceClients:
         now = time.monotonic()
         for pooled in list(self.entries.values()):
             if pooled.waiting:
-                ready = pooled.client.service_is_ready()
+                ready = pooled.ready(now)
                 still = []
                 for task, request, deadline, ready_by in pooled.waiting:
-                    if ready:
+                    if ready and len(pooled.calls) < MAX_IN_FLIGHT and now < deadline:
                         self._send(pooled, task, request, deadline)
-                    elif now >= ready_by:
+                    elif now >= deadline:
+                        self._done()
+                        self.stats.operation_timeouts += 1
+                        task.fail(IpcError("not-responding", f"The call to {pooled.path} waited in line for "
+                                                             "the whole service call timeout; it was not sent",
+                                           {"service": pooled.path}))
+                    elif now >= ready_by and pooled.ready_since is None:
                         self._done()
                         task.fail(IpcError("service-unavailable", f"No server of {pooled.path} is available",
                                            {"service": pooled.path}))

@@ -19,7 +19,7 @@ from tests.support.procs import Proc, poll_until
 
 TOKEN = "ops-token-0123456789abcdef"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
-CALL_TIMEOUT = 2
+CALL_TIMEOUT = 10
 ARM = "/apps/calib"
 
 
@@ -313,3 +313,54 @@ def test_goal_survives_nothing_of_a_killed_ros_worker_but_reads_failed(gw):
     assert r.status_code == 503 and r.json()["vendor_code"] == "x-medkit-ros2-action-unavailable"
     assert r.headers["Retry-After"]
     assert wait_done(gw, run_goal(gw, 3))["status"] == "completed"
+
+
+class _Answer:
+    """A ``requests`` answer seen as tests/app/test_app_openapi.py's ``check`` reads a Flask one."""
+
+    def __init__(self, response: requests.Response):
+        self.status_code = response.status_code
+        self.data = response.content
+        self.headers = response.headers
+        self.get_json = response.json
+
+
+def test_answers_follow_the_openapi_document(gw):
+    from app import openapi
+    from tests.app.test_app_openapi import check
+
+    doc = openapi.document()
+    seen: set[str] = set()
+    host = gw.host()
+    for collection, entity_id in (("apps", "calib"), ("components", host), ("functions", "arm")):
+        base = f"/api/v1/{collection}/{entity_id}/operations"
+        exec_id = run_goal(gw, 3) if collection == "apps" else None
+        calls = [("GET", base, {}), ("GET", base + "/calibrate", {}), ("GET", base + "/nope", {}),
+                 ("GET", base + "/fib/executions", {}), ("GET", base + "/calibrate/executions", {}),
+                 ("POST", base + "/calibrate/executions", {"json": {}, "headers": AUTH}),
+                 ("POST", base + "/calibrate/executions", {"json": {}}),
+                 ("POST", base + "/echo/executions", {"json": {"parameters": {"int8_value": 1000}},
+                                                      "headers": AUTH}),
+                 ("POST", base + "/fib/executions", {"json": {"parameters": {"order": 2}}, "headers": AUTH}),
+                 ("POST", base + "/fib/executions", {"json": {"parameters": {"order": -1}}, "headers": AUTH}),
+                 ("GET", base + "/fib/executions/" + "f" * 32, {}),
+                 ("PUT", base + "/fib/executions/" + "f" * 32, {"json": {"capability": "stop"},
+                                                                  "headers": AUTH}),
+                 ("DELETE", base + "/fib/executions/" + "f" * 32, {"headers": AUTH})]
+        if exec_id:
+            wait_done(gw, exec_id)
+            calls += [("GET", f"{base}/fib/executions/{exec_id}", {}),
+                      ("PUT", f"{base}/fib/executions/{exec_id}", {"json": {"capability": "reset"},
+                                                                   "headers": AUTH})]
+        for collection_ in ("components", "functions"):
+            if collection == collection_:
+                running = run_goal(gw, 500)
+                calls += [("PUT", f"{base}/fib/executions/{running}", {"json": {"capability": "stop"},
+                                                                       "headers": AUTH})]
+                other = run_goal(gw, 500)
+                calls += [("DELETE", f"{base}/fib/executions/{other}", {"headers": AUTH})]
+        for method, path, kw in calls:
+            r = requests.request(method, gw.url + path, timeout=30, **kw)
+            seen.add(check(doc, method, path, _Answer(r)))
+    documented = {f"{m.upper()} {p}" for p, ops in doc["paths"].items() for m in ops if "/operations" in p}
+    assert documented == seen, f"not exercised: {documented - seen}"
