@@ -11,6 +11,8 @@ newcomer can read live data at once::
     /diagnostics_agent                → /diagnostics                     (diagnostic_msgs/msg/DiagnosticArray, 1 Hz)
     /perception/camera                → /perception/camera/image_raw     (sensor_msgs/msg/Image, 64x48 rgb8, 5 Hz)
     /power/battery_monitor            → /power/battery                   (sensor_msgs/msg/BatteryState, 2 Hz)
+    /arm/calibration                  ⇄ /arm/calibrate, /arm/long_calibration (a service and an action:
+                                        demo/calibration.py)
 
 The battery does not measure its temperature, current or charge: as BatteryState says, those
 are NaN (which JSON cannot carry; see the README on non-finite floats).
@@ -143,6 +145,8 @@ def main() -> None:
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     rclpy.init(signal_handler_options=rclpy.SignalHandlerOptions.NO)
     nodes = build()
+    from demo import calibration  # operations: the arm's calibrate service and long_calibration action
+    nodes.append(calibration.build())
     executor = SingleThreadedExecutor()
     for node in nodes:
         executor.add_node(node)

@@ -26,9 +26,10 @@ def main() -> int:
     args, gateway_args = parser.parse_known_args()
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     robot = Child("demo robot", [sys.executable, "-m", "demo.robot"], env, signal.SIGTERM)
-    # Publishing is off by default; the demo turns it on so that the README's PUT example works.
+    # Publishing and operations are off by default; the demo turns them on so that the README's
+    # PUT and operations examples work.
     gateway = Child("sovd-gateway", [str(BIN / "sovd-gateway"), "--bind", args.bind, "--allow-publish",
-                                     *gateway_args], env, signal.SIGTERM)
+                                     "--allow-operations", *gateway_args], env, signal.SIGTERM)
     robot.start()
     gateway.start()
     host, _, port = args.bind.rpartition(":")
