@@ -146,6 +146,7 @@ def main() -> None:
     rclpy.init(signal_handler_options=rclpy.SignalHandlerOptions.NO)
     nodes = build()
     from demo import calibration  # operations: the arm's calibrate service and long_calibration action
+
     nodes.append(calibration.build())
     executor = SingleThreadedExecutor()
     for node in nodes:
