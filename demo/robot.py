@@ -145,7 +145,8 @@ def main() -> None:
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     rclpy.init(signal_handler_options=rclpy.SignalHandlerOptions.NO)
     nodes = build()
-    from demo import calibration  # operations: the arm's calibrate service and long_calibration action
+    # operations: the arm's calibrate service and long_calibration action
+    from demo import calibration
 
     nodes.append(calibration.build())
     executor = SingleThreadedExecutor()
