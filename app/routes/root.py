@@ -47,7 +47,7 @@ def root():
             **{name: False for name in NOT_SERVED},
             **unimplemented.capabilities(),
             # operations: services and actions (executing them needs allow_operations)
-            "operations": True, "async_actions": True,
+            "operations": True, "async_actions": True, "operation_execution": bool(cfg.allow_operations),
         },
     })
 

@@ -10,10 +10,12 @@ import { describe, get, getToken, setToken } from "./api.js";
 import { fill, h } from "./dom.js";
 import { HealthPanel } from "./health.js";
 import { ItemView } from "./item.js";
+import { OperationsView } from "./ops.js"; // operations: services and actions
 import { EntityTree } from "./tree.js";
 
 const TREE_RELOAD_MS = 30000;
 const ROUTE = /^#\/(apps|components|functions)\/([A-Za-z0-9_-]+)\/data\/(.+)$/;
+const OPS_ROUTE = /^#\/(apps|components|functions)\/([A-Za-z0-9_-]+)\/operations$/; // operations panel
 
 const $ = (id) => document.getElementById(id);
 let capabilities = {};
@@ -42,6 +44,13 @@ function showRoute() {
   view = null;
   tree.select(location.hash);
   const container = $("item");
+  // operations: services and actions (the Operations panel of an app)
+  const ops = OPS_ROUTE.exec(decodeURI(location.hash));
+  if (ops) {
+    view = new OperationsView(container, { collection: ops[1], entityId: ops[2] }, { capabilities });
+    view.start();
+    return;
+  }
   if (!match) {
     fill(container, h("div", { class: "placeholder" }, h("h2", {}, "Pick a data item"),
       h("p", {}, "Choose a topic in the tree to see its live value, plot its fields and, where the "

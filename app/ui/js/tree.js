@@ -69,8 +69,14 @@ export class EntityTree {
           }
         }
       }
+      // operations: the apps that offer services or actions (from the components' operations)
+      const withOps = new Set();
+      for (const comp of comps) {
+        const ops = await get(`${comp.item.href}/operations`).catch(() => ({ items: [] }));
+        for (const op of ops.items) for (const member of (op["x-medkit"] || {}).member_ids || []) withOps.add(member);
+      }
       if (!this.model) for (const comp of comps) this.open.add(`c:${comp.item.id}`);
-      this.model = { comps, funcs, topics };
+      this.model = { comps, funcs, topics, withOps };
       this.loadedAt = Date.now();
       this.status.textContent = "";
     } catch (error) {
@@ -102,7 +108,12 @@ export class EntityTree {
         .filter((t) => appMatches || matches(t.name))
         .sort((a, b) => a.name.localeCompare(b.name));
       if (!appMatches && items.length === 0) return null;
-      const list = h("ul", {}, items.map((t) => {
+      const opsHash = `#/apps/${app.id}/operations`; // operations: the app's Operations panel
+      const opsLink = this.model.withOps && this.model.withOps.has(app.id)
+        ? h("li", {}, h("a", { class: "ops-link", href: opsHash, dataset: { app: app.id },
+                               "aria-current": opsHash === this.current ? "true" : null }, "⚙ operations"))
+        : null;
+      const list = h("ul", {}, opsLink, items.map((t) => {
         const hash = itemRoute(app.href, t.name);
         return h("li", {}, h("a", {
           class: "topic", href: hash, title: `${t.name} (${t.ros2.type || "type unknown"})`,
