@@ -27,6 +27,7 @@ difference between figures of the same run.
 | stream image | a 640×480 rgb8 image at 5 Hz streamed at ``fast`` (``?bytes=base64``): publish stamp to client |
 | made-up topics | ROS worker CPU with 1,000 ``fast`` subscriptions on topics nobody publishes, against the same worker holding none |
 | subscription changes | median POST and DELETE of a cyclic subscription with 100 and with 900 held, beside ``/version-info`` |
+| service call | ``POST …/operations/calibrate/executions`` (the demo's ``std_srvs/Trigger``), 1 connection, against a bare rclpy client (``bench/operations.py``) |
 
 Floor, warm sample and echo route are measured in alternating rounds (floor
 -c8, sample -c8, echo -c8, floor -c1, sample -c1, echo -c1, health -c1, six
@@ -70,7 +71,7 @@ from tests.support.gateway import Gateway
 from tests.support.procs import Proc, poll_until, private_ros_domain
 
 from . import load as loadgen
-from . import streams
+from . import operations, streams
 from .procs import cpu_seconds, measure_cpu, robot, ros_helper
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -131,7 +132,8 @@ class Bench:
         self.load = loadgen.Load(wrk, note)
         log(f"load generator: {self.load.name} {note}")
         self.procs.append(ros_helper_demo())
-        self.gw = Gateway("--log-level", "warning", "--debug-commands", *self.args.gateway_args.split(),
+        self.gw = Gateway("--log-level", "warning", "--debug-commands", "--allow-operations",
+                          *self.args.gateway_args.split(),
                           log_path=os.path.join(self.work_dir, "gateway.log"))
         echo = Proc([sys.executable, "-m", "bench.echoworker", echo_endpoint(self.gw.runtime_dir)],
                     name="echo worker")
@@ -220,7 +222,8 @@ class Bench:
         cases = {"warm": self.case_floor_and_warm, "old": self.case_old_design,
                  "memory": self.case_memory, "image": self.case_image, "cold": self.case_cold,
                  "idle": self.case_idle, "streams": self.case_streams, "stream_image": self.case_stream_image,
-                 "sub_costs": self.case_sub_costs}
+                 "sub_costs": self.case_sub_costs,
+                 "operations": lambda: operations.case_trigger(self)}  # operations: a Trigger call
         only = set(self.args.only.split(",")) if self.args.only else set(cases)
         if "old" in only:
             only.add("warm")  # the old design is compared with the warm sample
@@ -617,7 +620,8 @@ def ros_helper_demo() -> Proc:
 # ---------------------------------------------------------------------------- output
 
 ORDER = ("floor8", "floor1", "warm8", "warm1", "echo8", "echo1", "hop1", "inside", "old", "cold", "image",
-         "image_b64", "idle", "memory", "streams", "fanout", "stream_image", "made_up", "sub_changes")
+         "image_b64", "idle", "memory", "streams", "fanout", "stream_image", "made_up", "sub_changes",
+         "trigger")
 
 
 def ordered(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -665,7 +669,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="extra sovd-gateway flags, e.g. '--workers 3' (recorded in the JSON)")
     parser.add_argument("--rounds", type=int, help="floor/warm rounds (default 3, quick 1)")
     parser.add_argument("--only", metavar="CASES", help="comma-separated subset of: warm (floor, warm "
-                        "sample and echo route), old, memory, image, cold, idle, streams, stream_image, sub_costs (for "
+                        "sample and echo route), old, memory, image, cold, idle, streams, stream_image, sub_costs, operations (for "
                         "development; the table is "
                         "partial)")
     args = parser.parse_args(argv)
