@@ -27,6 +27,7 @@ this thread so that a restarted worker can say what became of them.
 from __future__ import annotations
 
 import collections
+import functools
 import logging
 import time
 import uuid
@@ -149,7 +150,8 @@ class ActionClients:
         self.entries: collections.OrderedDict[str, Pooled] = collections.OrderedDict()
         self.goals: dict[str, Goal] = {}       # every kept goal, by id (restored ones too)
         self.open = 0                          # sends, cancels and goals not finished
-        self.on_change: Callable[[], None] = lambda: None
+        # Called after a goal starts or finishes (ROS thread) with what to run once that is saved.
+        self.on_change: Callable[[Callable[[], None] | None], None] = lambda then=None: then and then()
         executor.add_poller("action clients", lambda: self.open > 0, self.poll)
 
     # ---- clients --------------------------------------------------------------------------
@@ -331,8 +333,8 @@ class ActionClients:
                 request = impl.GetResultService.Request()
                 request.goal_id.uuid = list(goal.uuid)
                 pooled.results[handle.send_result_request(request)] = goal
-                changed = True
-                task.reply({"id": goal.id, "status": "running"})
+                # Answered once the goal is in the restart record (operations.py).
+                self.on_change(functools.partial(task.reply, {"id": goal.id, "status": "running"}))
             else:
                 self.stats.operation_goals_rejected += 1
                 task.fail(IpcError("action-rejected", "Goal rejected",

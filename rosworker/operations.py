@@ -30,6 +30,7 @@ import os
 import re
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 from ipc.errors import IpcError
@@ -138,19 +139,28 @@ def node_operations(services: list[tuple[str, list[str]]]) -> list[dict[str, Any
 
 
 class _Saver(threading.Thread):
-    """Writes the running goals to ``operations.json`` (latest wins), off the ROS thread."""
+    """Writes the running goals to ``operations.json`` (latest wins), off the ROS thread.
 
-    def __init__(self, path: str):
+    ``then`` (a goal's 202) is handed to ``post`` (the executor's: it runs on the ROS thread)
+    once the text submitted with it, or a later one, is on disk: a goal a client was told about
+    is in the record, so a ROS worker killed right after still knows it.
+    """
+
+    def __init__(self, path: str, post: Callable[[Callable[[], None]], None]):
         super().__init__(name="operations-state", daemon=True)
         self.path = path
+        self.post = post
         self._lock = threading.Lock()
         self._pending: str | None = None
+        self._then: list[Callable[[], None]] = []
         self._wake = threading.Event()
         self._closing = False
 
-    def submit(self, text: str) -> None:
+    def submit(self, text: str, then: Callable[[], None] | None = None) -> None:
         with self._lock:
             self._pending = text
+            if then is not None:
+                self._then.append(then)
         self._wake.set()
 
     def run(self) -> None:
@@ -159,8 +169,11 @@ class _Saver(threading.Thread):
             self._wake.clear()
             with self._lock:
                 text, self._pending = self._pending, None
+                then, self._then = self._then, []
             if text is not None:
                 self._write(text)
+            for fn in then:
+                self.post(fn)
             if self._closing:
                 return
 
@@ -225,20 +238,20 @@ class Operations:
         self.actions = ActionClients(node, executor, stats, max_clients, idle, max_goals, retention)
         if restore:  # a worker that died: what its running goals became (a clean start knows none)
             self.actions.restore(load_restart(executor.runtime_dir))
-        self._saver = _Saver(os.path.join(executor.runtime_dir, STATE_FILE))
+        self._saver = _Saver(os.path.join(executor.runtime_dir, STATE_FILE), executor.post)
         self._saver.start()
         self.actions.on_change = self.save
         self.save()
         self.handlers = {"op_list": self.op_list, "op_call": self.op_call, "op_goal": self.op_goal,
                          "op_goals": self.op_goals, "op_exec": self.op_exec, "op_cancel": self.op_cancel}
 
-    def save(self) -> None:
+    def save(self, then: Callable[[], None] | None = None) -> None:
         # Running goals, and those already known as lost (a previous restart): both read
         # "unknown" after the next one.
         records = [{"id": g.id, "action": g.path, "type": g.type_name, "entity_id": g.entity_id,
                     "created": g.created, "message": g.message if g.done else None}
                    for g in self.actions.goals.values() if not g.done or g.ros2_status == "unknown"]
-        self._saver.submit(json.dumps(records))
+        self._saver.submit(json.dumps(records), then)
 
     def _timeout(self, task: Task) -> float:
         # The HTTP side waits call_timeout plus a margin; answer before it gives up.
