@@ -28,24 +28,24 @@ def _p50(samples: list[float]) -> float:
 
 
 def case_trigger(bench) -> None:
-    n = 40 if bench.args.quick else 400
+    n, warmup = (10, 3) if bench.args.quick else (400, 20)
     session = requests.Session()
     url = bench.gw.api + PATH
     poll_until(lambda: session.post(url, json={}, timeout=10).status_code == 200, 60, interval=0.2,
                message="the demo's calibrate service through the gateway")
     gateway, floor = [], []
-    for i in range(n + 20):
+    for i in range(n + warmup):
         t0 = time.perf_counter()
         r = session.post(url, json={}, timeout=10)
         took = (time.perf_counter() - t0) * 1000
         assert r.status_code == 200, r.text
         t0 = time.perf_counter()
         session.get(bench.gw.api + "/version-info", timeout=10)
-        if i >= 20:
+        if i >= warmup:
             gateway.append(took)
             floor.append((time.perf_counter() - t0) * 1000)
     session.close()
-    proc = Proc([sys.executable, "-m", "bench.opsbare", SERVICE, str(n)], name="opsbare")
+    proc = Proc([sys.executable, "-m", "bench.opsbare", SERVICE, str(n), str(warmup)], name="opsbare")
     line = proc.wait_line(lambda x: x.startswith("{"), 60 + n * 0.1)
     proc.stop(timeout=5)
     bare = json.loads(line).get("samples_ms", [])

@@ -1,9 +1,9 @@
 """The bare rclpy reference of the operations bench row: ``N`` calls of a ``std_srvs/Trigger`` service.
 
-    python -m bench.opsbare /arm/calibrate 200
+    python -m bench.opsbare /arm/calibrate 200 20
 
-One node, one client, ``call_async`` and ``spin_until_future_complete`` per call, after a warm-up of
-20 calls.  Prints one JSON line: ``{"samples_ms": [...]}``.
+One node, one client, ``call_async`` and ``spin_until_future_complete`` per call, after a warm-up
+(the third argument: calls not counted).  Prints one JSON line: ``{"samples_ms": [...]}``.
 """
 
 from __future__ import annotations
@@ -14,11 +14,9 @@ import time
 
 from bench import rosmain
 
-WARMUP = 20
-
 
 def main() -> None:
-    service, n = sys.argv[1], int(sys.argv[2])
+    service, n, warmup = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
     from rclpy.executors import SingleThreadedExecutor
     from std_srvs.srv import Trigger
 
@@ -30,7 +28,7 @@ def main() -> None:
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     samples = []
-    for i in range(WARMUP + n):
+    for i in range(warmup + n):
         if stop.is_set():
             break
         t0 = time.perf_counter()
@@ -39,7 +37,7 @@ def main() -> None:
         if future.result() is None:
             print(json.dumps({"error": "a call was not answered in 10 s"}), flush=True)
             return
-        if i >= WARMUP:
+        if i >= warmup:
             samples.append((time.perf_counter() - t0) * 1000)
     print(json.dumps({"samples_ms": samples}), flush=True)
     executor.remove_node(node)

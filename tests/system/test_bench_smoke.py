@@ -17,7 +17,8 @@ import pytest
 from tests.support.procs import REPO
 
 CASES = {"floor8", "floor1", "warm8", "warm1", "echo8", "echo1", "hop1", "inside", "old", "cold", "image",
-         "image_b64", "idle", "memory", "streams", "fanout", "stream_image", "made_up", "sub_changes"}
+         "image_b64", "idle", "memory", "streams", "fanout", "stream_image", "made_up", "sub_changes",
+         "trigger"}  # operations: a Trigger call against a bare rclpy client
 
 
 @pytest.mark.timeout(120)
@@ -43,6 +44,7 @@ def test_quick_bench_runs_every_case_and_writes_json(tmp_path):
     assert rows["warm8"]["values"]["rps"] > 0
     assert rows["floor1"]["values"]["p50_ms"] > 0
     assert rows["hop1"]["values"]["p50_ms"] > 0
+    assert rows["trigger"]["values"]["gateway_p50_ms"] > 0 and rows["trigger"]["values"]["bare_p50_ms"] > 0
     assert rows["echo8"]["values"]["rps"] > 0 and rows["echo8"]["values"]["errors"] == 0  # the echo route answers
     assert rows["echo1"]["values"]["p50_ms"] > 0
     assert rows["inside"]["values"]["samples"] > 0 and rows["inside"]["values"]["us_per_sample"] > 0
