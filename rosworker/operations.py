@@ -261,6 +261,7 @@ class Operations:
         nodes = task.args.get("nodes")
         if not isinstance(nodes, list) or len(nodes) > MAX_NODES or not all(isinstance(n, str) for n in nodes):
             raise IpcError("bad-request", "nodes: expected a list of node names")
+        with_info = task.args.get("type_info", True) is not False
         out: dict[str, list] = {}
         for fqn in nodes:
             namespace, _, name = fqn.rpartition("/")
@@ -269,7 +270,7 @@ class Operations:
             except Exception:  # noqa: BLE001 - the node left, or is half discovered
                 services = []
             ops = node_operations(services)
-            for op in ops:
+            for op in ops if with_info else ():
                 op["type_info"] = type_info(op["type"], "srv" if op["kind"] == "service" else "action")
             out[fqn] = ops
         task.reply({"nodes": out})

@@ -14,6 +14,7 @@ names more than one operation is 400, never "whichever came first".
 
 from __future__ import annotations
 
+import time
 from collections import Counter
 from dataclasses import dataclass
 from typing import Any
@@ -38,6 +39,11 @@ EXECUTION = OPERATION + "/executions/<exec_id>"
 CALL_IPC_MARGIN_S = 2.0
 EXECUTION_ID_MAX = 64
 SOURCE = "ros2_medkit_gateway"
+# Resolving an id to run it uses a node's operations at most this old (a new service is seen
+# within it; the listing and the detail always ask the ROS worker).
+OP_LIST_TTL_S = 1.0
+OP_CACHE_MAX = 256
+_OP_CACHE: dict[tuple[str, ...], tuple[float, dict[str, Any]]] = {}
 
 
 @dataclass
@@ -87,10 +93,26 @@ def _members(entity: Entity) -> list[tuple[str, str]]:
     return out
 
 
-def operations_of(entity: Entity) -> list[Operation]:
-    members = _members(entity)
-    answer = rosclient.get().call("op_list", {"nodes": [fqn for _, fqn in members]})
+def _op_list(nodes: list[str], with_info: bool) -> dict[str, Any]:
+    """``op_list``; without ``type_info`` (resolving an id to run it) from a per-process cache of
+    at most ``OP_LIST_TTL_S``, so a warm call costs one round trip to the ROS worker, not two."""
+    key = tuple(nodes)
+    if not with_info:
+        hit = _OP_CACHE.get(key)
+        if hit is not None and time.monotonic() - hit[0] < OP_LIST_TTL_S:
+            return hit[1]
+    answer = rosclient.get().call("op_list", {"nodes": nodes, "type_info": with_info})
     by_node = answer.get("nodes") if isinstance(answer.get("nodes"), dict) else {}
+    if not with_info:
+        if len(_OP_CACHE) >= OP_CACHE_MAX:
+            _OP_CACHE.clear()
+        _OP_CACHE[key] = (time.monotonic(), by_node)
+    return by_node
+
+
+def operations_of(entity: Entity, with_info: bool = True) -> list[Operation]:
+    members = _members(entity)
+    by_node = _op_list([fqn for _, fqn in members], with_info)
     ops: list[Operation] = []
     for member, fqn in members:
         for op in by_node.get(fqn) or []:
@@ -109,9 +131,9 @@ def operations_of(entity: Entity) -> list[Operation]:
     return ops
 
 
-def resolve(entity: Entity, op_id: str) -> Operation:
+def resolve(entity: Entity, op_id: str, with_info: bool = True) -> Operation:
     """The one operation ``op_id`` names, or medkit's 404 / 400 (ambiguous)."""
-    ops = operations_of(entity)
+    ops = operations_of(entity, with_info)
     member, item = None, op_id
     if entity.aggregated and ":" in op_id:
         member, _, item = op_id.partition(":")
@@ -177,7 +199,7 @@ def detail(collection: str, entity_id: str, op_id: str):
 def execute(collection: str, entity_id: str, op_id: str):
     authorize_operations()
     entity = lookup(collection, entity_id)
-    op = resolve(entity, op_id)
+    op = resolve(entity, op_id, with_info=False)
     body = json_object('{"parameters": {...}}')
     params = _params(entity, op_id)
     data = next((body[k] for k in ("parameters", "request", "goal") if k in body), {})
@@ -201,7 +223,7 @@ def execute(collection: str, entity_id: str, op_id: str):
 @bp.get(OPERATION + "/executions")
 def executions(collection: str, entity_id: str, op_id: str):
     entity = lookup(collection, entity_id)
-    op = resolve(entity, op_id)
+    op = resolve(entity, op_id, with_info=False)
     if op.kind != "action":
         return json_response({"items": []})
     goals = _ipc("op_goals", {"action": op.path}, _params(entity, op_id))["items"]
