@@ -36,6 +36,13 @@ CODES: frozenset[str] = frozenset({
     "unavailable",
     "subscriptions-full",
     "deadline-exceeded",
+    # configurations (rosworker/parameters.py)
+    "node-unavailable",
+    "no-such-parameter",
+    "no-default",
+    "parameter-read-only",
+    "invalid-parameter-value",
+    "parameter-failed",
 })
 
 

@@ -35,6 +35,8 @@ COMMANDS = (
     "ping", "stats", "graph", "sample", "subscribe", "evict", "publish", "type_info", "pool",
     "sub_create", "sub_list", "sub_get", "sub_update", "sub_delete",
     "debug_sleep",
+    # configurations (rosworker/parameters.py)
+    "param_list", "param_get", "param_set", "param_reset", "param_reset_all",
 )
 # Commands answered from counters by the control thread, without queueing behind ROS work;
 # clients send them to the control socket.

@@ -23,7 +23,7 @@ SOVD_VERSION = openapi.SOVD_VERSION
 
 # medkit's capabilities that this gateway does not serve and whose routes are not in
 # unimplemented.ROUTES (later issues implement them).
-NOT_SERVED = ("operations", "async_actions", "configurations", "faults", "logs", "triggers")
+NOT_SERVED = ("operations", "async_actions", "faults", "logs", "triggers")
 
 
 
@@ -46,6 +46,7 @@ def root():
             # those of NOT_SERVED answer 404 until the issues that implement them.
             **{name: False for name in NOT_SERVED},
             **unimplemented.capabilities(),
+            "configurations": True,  # configurations: app/routes/configurations.py
         },
     })
 
@@ -120,7 +121,23 @@ def health():
         "x-medkit-data-provider": provider,
         "x-medkit-subscription-executor": executor,
         "x-medkit-streams": streams,
+        # configurations: the parameter clients of the ROS worker (rosworker/parameters.py)
+        "x-medkit-configurations": _configurations(stats),
     })
+
+
+CONFIGURATION_KEYS = ("parameter_clients", "parameter_client_cap", "parameter_calls_in_flight",
+                      "parameter_calls", "parameter_timeouts", "parameter_events")
+
+
+def _configurations(stats: dict[str, Any] | None) -> dict[str, Any]:
+    """/health's x-medkit-configurations: the ROS worker's parameter counters (its ``details``)."""
+    details = (stats or {}).get("details")
+    details = details if isinstance(details, dict) else {}
+    section = {key: details.get(key, 0) for key in CONFIGURATION_KEYS}
+    if not details:
+        section["parameter_client_cap"] = config().max_parameter_clients
+    return section
 
 
 def _sections(stats: dict[str, Any] | None) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:

@@ -39,10 +39,11 @@ def test_root_says_what_is_not_served(client):
     """The capabilities say what answers 501 (app/routes/unimplemented.py) and what is not there yet."""
     body = client.get("/api/v1/").get_json()
     caps = body["capabilities"]
-    for name in ("bulk_data", "locking", "scripts", "lifecycle", "updates", "operations", "configurations",
+    for name in ("bulk_data", "locking", "scripts", "lifecycle", "updates", "operations",
                  "faults", "logs", "triggers"):
         assert caps[name] is False, name
     assert caps["cyclic_subscriptions"] is True and caps["docs"] is True
+    assert caps["configurations"] is True  # configurations: app/routes/configurations.py
     assert "GET /api/v1/updates" in body["endpoints"]
     assert "POST /api/v1/apps/{app_id}/locks" in body["endpoints"]
 
