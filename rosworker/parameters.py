@@ -48,6 +48,7 @@ from typing import Any
 
 from rcl_interfaces.msg import Parameter, ParameterEvent, ParameterType, ParameterValue
 from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters, SetParameters
+from rclpy.parameter_service import ParameterService
 from rclpy.qos import qos_profile_parameter_events, qos_profile_parameters
 
 from ipc.errors import IpcError
@@ -295,6 +296,16 @@ class Op:
         self.deadline = deadline
         self.step: Step | None = None
         self.sent: tuple[str, int] | None = None  # (kind, sequence number) once sent
+
+
+class _Own:
+    """What rclpy's ParameterService callbacks need of their service: the node."""
+
+    def __init__(self, node):
+        self._node = node
+
+    def _get_node(self):
+        return self._node
 
 
 class Record:
@@ -566,15 +577,11 @@ class ParameterClients:
             self._send(op)
 
     def _local(self, op: Op) -> None:
-        """The gateway's own node: its parameter service's callbacks, called here (never its services)."""
+        """The gateway's own node: rclpy's parameter service callbacks run here on the node itself (it
+        serves no parameter services, and calling its own would wait on this thread)."""
         kind, request = op.step
-        service = getattr(self.node, "_parameter_service", None)
-        if service is None:
-            self._finish(op, IpcError("node-unavailable", f"The gateway's node {op.fqn} has no parameter "
-                                      "services", {"node": op.fqn}))
-            return
-        callback = getattr(service, f"_{SERVICE_NAMES[kind]}_callback")
-        self._advance(op, callback(request, SERVICES[kind].Response()))
+        callback = getattr(ParameterService, f"_{SERVICE_NAMES[kind]}_callback")
+        self._advance(op, callback(_Own(self.node), request, SERVICES[kind].Response()))
 
     def _send(self, op: Op) -> None:
         kind, request = op.step

@@ -310,6 +310,52 @@ def test_reset_all_names_a_node_that_does_not_answer(gw):
     assert stuck["success"] is False and "/mix/stuck" in stuck["error"]
 
 
+def test_a_restarted_node_is_a_new_record(gw):
+    spec = {"node": "phoenix", "namespace": "/cfgphx", "params": [{"name": "v", "value": 1}]}
+    base = "/apps/phoenix/configurations/v"
+    node = ParamNode(spec)
+    try:
+        poll_until(lambda: gw.get(base).status_code == 200, 20, message="phoenix's parameter")
+        assert put(gw, base, {"data": 5}).status_code == 200
+    finally:
+        node.stop()
+    node = ParamNode({**spec, "params": [{"name": "v", "value": 2}]})
+    try:
+        poll_until(lambda: gw.get(base).status_code == 200 and gw.get(base).json()["data"] == 2, 20,
+                   message="the new phoenix's parameter")
+        assert put(gw, base, {"data": 7}).status_code == 200
+        assert delete(gw, base).status_code == 204
+        assert gw.get(base).json()["data"] == 2  # this start's first value, not the last one's
+    finally:
+        node.stop()
+
+
+def test_the_gateways_own_node_is_answered_without_calling_itself(gw):
+    client = gw.rosworker_client()
+    try:
+        own = "/sovd_gateway_sub"
+        listed = client.call("param_list", {"nodes": [own]}, timeout=5)["nodes"][own]
+        assert listed["ok"] is True and "use_sim_time" in {p["name"] for p in listed["parameters"]}
+        got = client.call("param_get", {"node": own, "name": "use_sim_time"}, timeout=5)
+        assert got["value"] is False and got["type"] == "bool" and got["read_only"] is False
+    finally:
+        client.close()
+
+
+def test_client_cap_and_writes_off_by_default(robot):
+    gateway = Gateway("--max-parameter-clients", "1", "--log-level", "warning")
+    try:
+        poll_until(lambda: gateway.get("/apps/helper").status_code == 200, 20, message="helper as an app")
+        for app in ("tuner", "helper", "tuner", "autodecl"):
+            assert gateway.get(f"/apps/{app}/configurations").status_code == 200
+        assert gateway.get("/health").json()["x-medkit-configurations"]["parameter_clients"] == 1
+        assert gateway.get("/health").json()["x-medkit-configurations"]["parameter_client_cap"] == 1
+        r = requests.put(gateway.api + T + "/count", json={"data": 1}, timeout=15)
+        assert r.status_code == 403 and r.json()["error_code"] == "forbidden"
+    finally:
+        gateway.stop()
+
+
 # ---- ids on an entity of several nodes ---------------------------------------------------------------
 def test_multi_node_ids_through_a_function(gw):
     f = "/functions/cfg/configurations"
