@@ -153,6 +153,8 @@ def test_entity_docs_fill_in_the_entity(client):
         "/components/test-robot/cyclic-subscriptions/{subscription_id}",
         "/components/test-robot/cyclic-subscriptions/{subscription_id}/events",
         "/components/test-robot/docs", "/components/test-robot/data/docs",
+        # configurations: app/routes/configurations.py
+        "/components/test-robot/configurations", "/components/test-robot/configurations/{config_id}",
         # medkit's routes not served here (501), in the order of unimplemented.ROUTES
         *dict.fromkeys(path.replace("{component_id}", "test-robot")
                        for _, path, collection in unimplemented.paths() if collection == "components")]
