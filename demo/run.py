@@ -28,6 +28,7 @@ def main() -> int:
     robot = Child("demo robot", [sys.executable, "-m", "demo.robot"], env, signal.SIGTERM)
     # Publishing is off by default; the demo turns it on so that the README's PUT example works.
     gateway = Child("sovd-gateway", [str(BIN / "sovd-gateway"), "--bind", args.bind, "--allow-publish",
+                                     "--allow-configurations",  # configurations: the README's PUT example
                                      *gateway_args], env, signal.SIGTERM)
     robot.start()
     gateway.start()
