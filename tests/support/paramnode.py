@@ -7,6 +7,7 @@ Run as ``python -m tests.support.paramnode '<json spec>'``::
                  "int_range": [0, 100, 1], "float_range": [0.0, 50.0, 0.0], "dynamic": false}],
      "overrides": {"extra": 5},        # with automatically_declare_parameters_from_overrides
      "refuse": {"mode": ["auto"]},     # values a set callback refuses ("<value> is locked")
+     "declare_on": {"trigger": "arm", "name": "late", "value": 3},  # set arm true: late is declared
      "hang": false,                    # true: never runs a callback (its services never answer)
      "services": true}                 # false: no parameter services at all
 
@@ -73,6 +74,18 @@ def serve(spec: dict) -> None:
             return SetParametersResult(successful=True)
 
         node.add_on_set_parameters_callback(check)
+    later = spec.get("declare_on")
+    if later:
+        armed = []
+        node.declare_parameter(later["trigger"], False)
+        node.add_post_set_parameters_callback(
+            lambda params: armed.extend(p for p in params if p.name == later["trigger"] and p.value is True))
+
+        def declare_when_armed():
+            if armed and not node.has_parameter(later["name"]):
+                node.declare_parameter(later["name"], _value(later["value"]))
+
+        node.create_timer(0.05, declare_when_armed)
     print("READY", flush=True)
     if spec.get("hang"):
         while not stop.is_set():  # in the graph, services and all, but nothing ever answers

@@ -263,12 +263,18 @@ def test_a_node_that_leaves_between_list_and_set(gw):
     assert gw.get(f"{T}/count").status_code == 200
 
 
+def set_elsewhere(fqn: str, name: str, value: str) -> str:
+    """Set one parameter with a bare rclpy client in another process; its verdict line."""
+    setter = Proc([sys.executable, "-m", "tests.support.paramnode", "--set", fqn, name, value], name="setter")
+    try:
+        return setter.wait_line(lambda line: line.startswith("SET"), 20)
+    finally:
+        setter.stop()
+
+
 def test_a_change_by_another_client_is_seen_at_once(gw):
     assert gw.get(f"{T}/ratio").json()["data"] == 0.5
-    setter = Proc([sys.executable, "-m", "tests.support.paramnode", "--set", "/cfg/tuner", "ratio", "0.75"],
-                  name="setter")
-    assert setter.wait_line(lambda line: line.startswith("SET"), 20) == "SET ok"
-    setter.stop()
+    assert set_elsewhere("/cfg/tuner", "ratio", "0.75") == "SET ok"
     assert gw.get(f"{T}/ratio").json()["data"] == 0.75
     assert delete(gw, f"{T}/ratio").status_code == 204
     assert gw.get(f"{T}/ratio").json()["data"] == 0.5
@@ -326,6 +332,24 @@ def test_a_restarted_node_is_a_new_record(gw):
         assert put(gw, base, {"data": 7}).status_code == 200
         assert delete(gw, base).status_code == 204
         assert gw.get(base).json()["data"] == 2  # this start's first value, not the last one's
+    finally:
+        node.stop()
+
+
+def test_a_parameter_declared_later_is_recorded_from_its_parameter_event(gw, robot):
+    base = "/apps/latecomer/configurations"
+    node = ParamNode({"node": "latecomer", "namespace": "/cfglate",
+                      "declare_on": {"trigger": "arm", "name": "late", "value": 3}})
+    try:
+        poll_until(lambda: gw.get(base).status_code == 200, 20, message="latecomer's parameters")  # recorded
+        assert put(gw, f"{base}/arm", {"data": True}).status_code == 200
+        # Another client changes it as soon as it is declared, before the gateway ever reads it:
+        # only /parameter_events told the gateway the value it was declared with.
+        poll_until(lambda: set_elsewhere("/cfglate/latecomer", "late", "9") == "SET ok", 20,
+                   message="late declared and set by another client")
+        assert gw.get(f"{base}/late").json()["data"] == 9
+        assert delete(gw, f"{base}/late").status_code == 204
+        assert gw.get(f"{base}/late").json()["data"] == 3
     finally:
         node.stop()
 
