@@ -78,7 +78,7 @@ INT64_MIN, INT64_MAX = -(2**63), 2**63 - 1
 _NON_FINITE = {"NaN": math.nan, "Infinity": math.inf, "-Infinity": -math.inf}
 
 Step = tuple[str, Any]                          # (service kind, request)
-Operation = Generator[Step, Any, Any]
+Operation = Generator[Step | list[Step], Any, Any]
 
 
 # ---- values: ParameterValue <-> JSON ------------------------------------------------------
@@ -277,7 +277,7 @@ class NodeClients:
     def __init__(self, fqn: str, clients: dict[str, Any]):
         self.fqn = fqn
         self.clients = clients
-        self.pending: dict[str, dict[int, Op]] = {kind: {} for kind in clients}
+        self.pending: dict[str, dict[int, tuple[Op, int]]] = {kind: {} for kind in clients}
         self.used = time.monotonic()
 
     def open_calls(self) -> int:
@@ -285,17 +285,22 @@ class NodeClients:
 
 
 class Op:
-    """One operation on one node: its generator, the step it waits on, its deadline and its end."""
+    """One operation on one node: its generator, the requests of its current step, its deadline and its end.
 
-    __slots__ = ("fqn", "gen", "done", "deadline", "step", "sent")
+    A step is one request, or a list of requests sent at once (a read's value and descriptor)."""
+
+    __slots__ = ("fqn", "gen", "done", "deadline", "steps", "many", "responses", "unsent", "sent")
 
     def __init__(self, fqn: str, gen: Operation, done: Callable[[Any], None], deadline: float):
         self.fqn = fqn
         self.gen = gen
         self.done = done          # called once with the result or an IpcError
         self.deadline = deadline
-        self.step: Step | None = None
-        self.sent: tuple[str, int] | None = None  # (kind, sequence number) once sent
+        self.steps: list[Step] = []
+        self.many = False         # the step was a list: the generator gets a list of responses
+        self.responses: list[Any] = []
+        self.unsent: set[int] = set()            # requests of the step waiting for their service
+        self.sent: dict[int, tuple[str, int]] = {}  # request index -> (kind, sequence number)
 
 
 class _Own:
@@ -350,14 +355,13 @@ class ParameterClients:
                         header, response = client.handle.take_response(client.srv_type.Response)
                     if header is None:
                         break
-                    op = pending.pop(header.request_id.sequence_number, None)
-                    if op is not None and op in self._ops:
-                        op.sent = None
-                        self._advance(op, response)
+                    entry = pending.pop(header.request_id.sequence_number, None)
+                    if entry is not None and entry[0] in self._ops:
+                        self._answered(entry[0], entry[1], response)
         now = time.monotonic()
         for op in list(self._ops):
-            if op.sent is None and op.step is not None and op in self._ops:
-                self._send(op)
+            if op.unsent and op in self._ops:
+                self._dispatch(op)
             if op in self._ops and now >= op.deadline:
                 self._timed_out(op)
         self._gauges()
@@ -451,11 +455,13 @@ class ParameterClients:
         return [{"name": n, "value": value_json(v), "type": type_name(v)} for n, v in zip(names, values, strict=True)]
 
     def op_get(self, fqn: str, name: str) -> Operation:
-        value = yield from self._current(fqn, name)
-        response = yield "describe", DescribeParameters.Request(names=[name])
+        yield from self._record(fqn)
+        got, described = yield [("get", GetParameters.Request(names=[name])),
+                                ("describe", DescribeParameters.Request(names=[name]))]
+        value = self._found(fqn, name, got)
         body = {"name": name, "value": value_json(value), "type": type_name(value)}
-        if response.descriptors:
-            body.update(descriptor_json(response.descriptors[0]))
+        if described.descriptors:
+            body.update(descriptor_json(described.descriptors[0]))
         return body
 
     def op_set(self, fqn: str, name: str, data: Any) -> Operation:
@@ -513,6 +519,10 @@ class ParameterClients:
     def _current(self, fqn: str, name: str) -> Generator[Step, Any, ParameterValue]:
         yield from self._record(fqn)
         got = yield "get", GetParameters.Request(names=[name])
+        return self._found(fqn, name, got)
+
+    def _found(self, fqn: str, name: str, got: Any) -> ParameterValue:
+        """The value of a get_parameters answer for one name (first seen: recorded), or 404."""
         if not got.values or got.values[0].type == T.PARAMETER_NOT_SET:
             raise IpcError("no-such-parameter", f"Parameter not found: {name}", {"name": name})
         record = self._records.get(fqn)
@@ -560,7 +570,7 @@ class ParameterClients:
     # ---- driving an operation -------------------------------------------------------------
     def _advance(self, op: Op, response: Any) -> None:
         try:
-            op.step = op.gen.send(response)
+            step = op.gen.send(response)
         except StopIteration as stop:
             self._finish(op, stop.value)
             return
@@ -571,38 +581,55 @@ class ParameterClients:
             log.exception("parameter operation on %s failed", op.fqn)
             self._finish(op, IpcError("internal", f"parameter operation failed: {type(exc).__name__}"))
             return
+        op.many = isinstance(step, list)
+        op.steps = step if op.many else [step]
+        op.responses = [None] * len(op.steps)
+        op.unsent = set(range(len(op.steps)))
+        op.sent = {}
         if op.fqn == self.own_fqn:
             self._local(op)
         else:
-            self._send(op)
+            self._dispatch(op)
+
+    def _answered(self, op: Op, index: int, response: Any) -> None:
+        op.sent.pop(index, None)
+        op.responses[index] = response
+        if not op.sent and not op.unsent:
+            self._advance(op, op.responses if op.many else op.responses[0])
 
     def _local(self, op: Op) -> None:
         """The gateway's own node: rclpy's parameter service callbacks run here on the node itself (it
         serves no parameter services, and calling its own would wait on this thread)."""
-        kind, request = op.step
-        callback = getattr(ParameterService, f"_{SERVICE_NAMES[kind]}_callback")
-        self._advance(op, callback(_Own(self.node), request, SERVICES[kind].Response()))
+        op.unsent.clear()
+        for i, (kind, request) in enumerate(op.steps):
+            callback = getattr(ParameterService, f"_{SERVICE_NAMES[kind]}_callback")
+            op.responses[i] = callback(_Own(self.node), request, SERVICES[kind].Response())
+        self._advance(op, op.responses if op.many else op.responses[0])
 
-    def _send(self, op: Op) -> None:
-        kind, request = op.step
+    def _dispatch(self, op: Op) -> None:
+        """Send the step's requests whose services are ready (the others wait for the next round)."""
         try:
             clients = self._clients_for(op.fqn)
         except IpcError as exc:
             self._finish(op, exc)
             return
-        client = clients.clients[kind]
         clients.used = time.monotonic()
-        if not client.service_is_ready():
-            if not self._offers_services(op.fqn):
-                self._finish(op, IpcError("node-unavailable", f"Parameter service not available for node: "
-                                          f"{op.fqn} (the node has no parameter services, or has gone)",
-                                          {"node": op.fqn, "retry_after_s": 2}))
-            return  # discovered but not matched yet: tried again on the next round
-        with client.handle:
-            seq = client.handle.send_request(request)
-        clients.pending[kind][seq] = op
-        op.sent = (kind, seq)
-        self.stats.parameter_calls += 1
+        for i in sorted(op.unsent):
+            kind, request = op.steps[i]
+            client = clients.clients[kind]
+            if not client.service_is_ready():
+                if not self._offers_services(op.fqn):
+                    self._finish(op, IpcError("node-unavailable", f"Parameter service not available for node: "
+                                              f"{op.fqn} (the node has no parameter services, or has gone)",
+                                              {"node": op.fqn, "retry_after_s": 2}))
+                    return
+                continue  # discovered but not matched yet: tried again on the next round
+            with client.handle:
+                seq = client.handle.send_request(request)
+            clients.pending[kind][seq] = (op, i)
+            op.sent[i] = (kind, seq)
+            op.unsent.discard(i)
+            self.stats.parameter_calls += 1
 
     def _offers_services(self, fqn: str) -> bool:
         namespace, _, name = fqn.rpartition("/")
@@ -615,7 +642,7 @@ class ParameterClients:
     def _timed_out(self, op: Op) -> None:
         self.stats.parameter_timeouts += 1
         self._unavailable[op.fqn] = time.monotonic() + self.negative_cache_s
-        what = "did not respond" if op.sent is not None else "was not available"
+        what = "did not respond" if op.sent else "was not available"
         log.warning("parameter service of %s %s within %g s (answered at once for %g s)", op.fqn, what,
                     self.timeout, self.negative_cache_s)
         self._finish(op, IpcError("node-unavailable",
@@ -627,11 +654,12 @@ class ParameterClients:
         if op not in self._ops:
             return
         self._ops.discard(op)
-        if op.sent is not None:
-            clients = self._nodes.get(op.fqn)
-            if clients is not None:
-                clients.pending[op.sent[0]].pop(op.sent[1], None)
-            op.sent = None
+        clients = self._nodes.get(op.fqn)
+        if clients is not None:
+            for kind, seq in op.sent.values():
+                clients.pending[kind].pop(seq, None)
+        op.sent = {}
+        op.unsent = set()
         op.gen.close()
         self._gauges()
         op.done(result)
