@@ -366,6 +366,26 @@ def test_the_gateways_own_node_is_answered_without_calling_itself(gw):
         client.close()
 
 
+@pytest.mark.parametrize(("cmd", "args"), [
+    ("param_list", {}), ("param_list", {"nodes": "x"}), ("param_list", {"nodes": [1]}),
+    ("param_list", {"nodes": ["/a"] * 300}), ("param_get", {"node": "rel/name", "name": "x"}),
+    ("param_get", {"node": "/cfg/tuner", "name": ""}), ("param_get", {"node": "/cfg/tuner", "name": ["x"]}),
+    ("param_set", {"node": "/cfg/tuner", "name": "count"}), ("param_reset", {"node": None, "name": "x"}),
+    ("param_reset_all", {"nodes": [None]}),
+])
+def test_the_commands_refuse_what_is_not_theirs(gw, cmd, args):
+    from ipc.errors import IpcError
+
+    client = gw.rosworker_client()
+    try:
+        with pytest.raises(IpcError) as err:
+            client.call(cmd, args, timeout=5)
+        assert err.value.code == "bad-request", err.value
+    finally:
+        client.close()
+    assert gw.get(f"{T}/count").status_code == 200
+
+
 def test_client_cap_and_writes_off_by_default(robot):
     gateway = Gateway("--max-parameter-clients", "1", "--log-level", "warning")
     try:
