@@ -59,6 +59,9 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
     app.register_blueprint(ui.bp)  # the dashboard at /ui/ (app/ui/)
     from .routes import operations  # operations: services and actions
     app.register_blueprint(operations.bp)
+    # configurations: the nodes' ROS 2 parameters (app/routes/configurations.py)
+    from .routes import configurations
+    app.register_blueprint(configurations.bp)
     if cfg.debug_commands:  # test and bench routes; never in production
         from .routes import debug
 

@@ -224,6 +224,8 @@ class Bench:
                  "idle": self.case_idle, "streams": self.case_streams, "stream_image": self.case_stream_image,
                  "sub_costs": self.case_sub_costs,
                  "operations": lambda: operations.case_trigger(self)}  # operations: a Trigger call
+        # configurations: GET and PUT of a parameter vs a bare rclpy parameter client (bench/params.py)
+        cases["params"] = lambda: __import__("bench.params", fromlist=["case"]).case(self)
         only = set(self.args.only.split(",")) if self.args.only else set(cases)
         if "old" in only:
             only.add("warm")  # the old design is compared with the warm sample

@@ -176,6 +176,16 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("max_goals_per_action", int, 100, "goals kept per action (the oldest finished is dropped first)",
             1, 10000),
     Setting("goal_retention", float, 600.0, "seconds a finished goal stays readable", 1, 604800),
+    # --- configurations: ROS 2 parameters of the nodes (README "Configurations: ROS 2 parameters") ---
+    Setting("allow_configurations", bool, False, "allow PUT and DELETE .../configurations to change ROS 2 "
+            "parameters"),
+    Setting("parameter_service_timeout", float, 2.0, "seconds a node's parameter services get to answer one "
+            "request (503 past it)", 0.1, 30),
+    Setting("parameter_negative_cache_s", float, 10.0, "seconds a node whose parameter services did not answer "
+            "is answered 503 at once", 1, 3600, "off"),
+    Setting("max_parameter_clients", int, 64, "LRU cap on nodes with pooled parameter clients", 1, 4096),
+    Setting("parameter_client_idle_s", float, 300.0, "seconds a node's unused parameter clients are kept",
+            1, 86400),
 )
 
 BY_NAME = {s.name: s for s in SETTINGS}

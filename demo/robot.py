@@ -62,6 +62,9 @@ def build() -> list[Node]:
         msg.variance = 0.5
 
     _periodic(engine, "temperature", Temperature, 10, temperature)
+    # configurations: the engine's parameters; publish_rate changes the rate above (demo/tuning.py)
+    from demo.tuning import tune
+    tune(engine)
 
     brakes = Node("pressure_sensor", namespace="/chassis/brakes")
 

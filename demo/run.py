@@ -29,7 +29,9 @@ def main() -> int:
     # Publishing and operations are off by default; the demo turns them on so that the README's
     # PUT and operations examples work.
     gateway = Child("sovd-gateway", [str(BIN / "sovd-gateway"), "--bind", args.bind, "--allow-publish",
-                                     "--allow-operations", *gateway_args], env, signal.SIGTERM)
+                                     "--allow-operations",
+                                     "--allow-configurations",  # configurations: the README's PUT example
+                                     *gateway_args], env, signal.SIGTERM)
     robot.start()
     gateway.start()
     host, _, port = args.bind.rpartition(":")

@@ -166,6 +166,17 @@ COUNTERS: tuple[Counter, ...] = (
       "sovd_ros_operation_goals_rejected"),
     C("operations", "operation_timeouts", COUNTER, "Service calls, goal and cancel requests not answered "
       "within service_call_timeout", "sovd_ros_operation_timeouts"),
+    # configurations (rosworker/parameters.py); /health shows them as x-medkit-configurations
+    C("details", "parameter_clients", GAUGE, "Nodes with pooled parameter clients now", "sovd_ros_parameter_clients"),
+    C("details", "parameter_client_cap", GAUGE, "Most nodes with pooled parameter clients (max_parameter_clients)",
+      "sovd_ros_parameter_client_cap", setting="max_parameter_clients"),
+    C("details", "parameter_calls_in_flight", GAUGE, "Parameter operations waiting on a node now",
+      "sovd_ros_parameter_calls_in_flight"),
+    C("details", "parameter_calls", COUNTER, "Parameter service requests sent", "sovd_ros_parameter_calls"),
+    C("details", "parameter_timeouts", COUNTER, "Parameter operations a node did not answer in time",
+      "sovd_ros_parameter_timeouts"),
+    C("details", "parameter_events", COUNTER, "Messages read from /parameter_events",
+      "sovd_ros_parameter_events"),
 )
 del C
 

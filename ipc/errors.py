@@ -45,6 +45,13 @@ CODES: frozenset[str] = frozenset({
     "not-responding",
     "no-such-execution",
     "goals-full",
+    # configurations (rosworker/parameters.py)
+    "node-unavailable",
+    "no-such-parameter",
+    "no-default",
+    "parameter-read-only",
+    "invalid-parameter-value",
+    "parameter-failed",
 })
 
 

@@ -37,6 +37,8 @@ COMMANDS = (
     "debug_sleep",
     # operations: services and actions (rosworker/operations.py)
     "op_list", "op_call", "op_goal", "op_goals", "op_exec", "op_cancel",
+    # configurations (rosworker/parameters.py)
+    "param_list", "param_get", "param_set", "param_reset", "param_reset_all",
 )
 # Commands answered from counters by the control thread, without queueing behind ROS work;
 # clients send them to the control socket.

@@ -242,6 +242,14 @@ class Worker:
             every(cfg.idle_sweep_tick, pool.sweep_idle)
             every(cfg.idle_sweep_tick, publishers.sweep_idle)
         every(STATE_SAVE_EVERY, save_state)
+        # configurations: the nodes' ROS 2 parameters through pooled parameter clients (rosworker/parameters.py)
+        from .parameters import ParameterClients
+        parameters = ParameterClients(node, stats, timeout=cfg.parameter_service_timeout,
+                                      negative_cache_s=cfg.parameter_negative_cache_s,
+                                      max_clients=cfg.max_parameter_clients, idle_s=cfg.parameter_client_idle_s)
+        executor.serve({**commands.handlers, **parameters.handlers()})
+        executor.add_poller("parameter clients", parameters.active, parameters.poll)
+        every(min(cfg.idle_sweep_tick, 1.0), parameters.sweep_idle)
         if rewarm:
             self._rewarm(executor, pool, rewarm, time.monotonic() + REWARM_FOR)
         streams.restore(subscriptions)

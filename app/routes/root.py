@@ -23,7 +23,7 @@ SOVD_VERSION = openapi.SOVD_VERSION
 
 # medkit's capabilities that this gateway does not serve and whose routes are not in
 # unimplemented.ROUTES (later issues implement them).
-NOT_SERVED = ("configurations", "faults", "logs", "triggers")
+NOT_SERVED = ("faults", "logs", "triggers")
 
 
 
@@ -48,6 +48,7 @@ def root():
             **unimplemented.capabilities(),
             # operations: services and actions (executing them needs allow_operations)
             "operations": True, "async_actions": True, "operation_execution": bool(cfg.allow_operations),
+            "configurations": True,  # configurations: app/routes/configurations.py
         },
     })
 
@@ -125,7 +126,23 @@ def health():
         # operations: service and action clients, calls in flight, goals, timeouts (ipc/counters.py)
         "x-medkit-operations": {**counters.health_defaults("operations", config()),
                                 **((stats or {}).get("operations") or {})},
+        # configurations: the parameter clients of the ROS worker (rosworker/parameters.py)
+        "x-medkit-configurations": _configurations(stats),
     })
+
+
+CONFIGURATION_KEYS = ("parameter_clients", "parameter_client_cap", "parameter_calls_in_flight",
+                      "parameter_calls", "parameter_timeouts", "parameter_events")
+
+
+def _configurations(stats: dict[str, Any] | None) -> dict[str, Any]:
+    """/health's x-medkit-configurations: the ROS worker's parameter counters (its ``details``)."""
+    details = (stats or {}).get("details")
+    details = details if isinstance(details, dict) else {}
+    section = {key: details.get(key, 0) for key in CONFIGURATION_KEYS}
+    if not details:
+        section["parameter_client_cap"] = config().max_parameter_clients
+    return section
 
 
 def _sections(stats: dict[str, Any] | None) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:

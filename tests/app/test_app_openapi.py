@@ -131,7 +131,8 @@ def test_every_route_answers_per_the_document(doc):
             "/powertrain/engine/temperature", "sensor_msgs/msg/Temperature", {"temperature": 93.5})
         fw.type_infos["sensor_msgs/msg/Temperature"] = {"schema": {"type": "object"},
                                                         "default_value": {"temperature": 0.0}}
-        client = make_app(fw, allow_publish=True, api_token=TOKEN, max_body_bytes=1024).test_client()
+        client = make_app(fw, allow_publish=True, allow_configurations=True, api_token=TOKEN,
+                          max_body_bytes=1024).test_client()
         auth = {"Authorization": f"Bearer {TOKEN}"}
         requests: list[tuple[str, str, dict]] = [
             ("GET", "/api/v1/", {}), ("GET", "/api/v1/version-info", {}), ("GET", "/api/v1/health", {}),
@@ -233,6 +234,36 @@ def test_every_route_answers_per_the_document(doc):
         r = client.get("/api/v1/apps/temp_sensor/data/x")
         assert r.status_code == 504
         check(doc, "GET", "/api/v1/apps/temp_sensor/data/x", r)
+        # Configurations (with real nodes: tests/system/test_configurations.py).
+        param = {"name": "rate", "value": 1.0, "type": "double"}
+        fw.replies = {
+            "param_list": lambda args: {"nodes": {n: {"ok": True, "parameters": [param]} for n in args["nodes"]}},
+            "param_get": {**param, "description": "", "read_only": False},
+            "param_set": param, "param_reset": {},
+            "param_reset_all": lambda args: {"nodes": {n: {"ok": True, "result": {
+                "reset": [], "failed": [{"name": "mode", "reason": "locked"}]}} for n in args["nodes"]}},
+        }
+        for collection in ("apps", "components", "functions"):
+            base = f"/api/v1/{collection}/{ENTITY[collection]}/configurations"
+            item = base + ("/rate" if collection != "components" else "/temp_sensor:rate")
+            for method, path, kw in [
+                ("GET", base, {}), ("GET", f"/api/v1/{collection}/nope/configurations", {}),
+                ("GET", item, {}), ("GET", base + "/" + "a" * 600, {}),
+                ("PUT", item, {"json": {"data": 2.0}, "headers": auth}), ("PUT", item, {"json": {"data": 2.0}}),
+                ("PUT", item, {"json": {"data": 2.0}, "headers": {"Authorization": "Bearer wrong"}}),
+                ("PUT", item, {"json": {}, "headers": auth}),
+                ("PUT", item, {"data": b'{"data": 1}', "content_type": "text/plain", "headers": auth}),
+                ("PUT", item, {"json": {"data": "x" * 2000}, "headers": auth}),
+                ("DELETE", item, {"headers": auth}), ("DELETE", item, {}),
+                ("DELETE", base, {"headers": auth}), ("DELETE", base, {}),
+            ]:
+                r = client.open(path, method=method, **kw)
+                check(doc, method, path, r)
+                seen.setdefault(operation(doc, method, path)[0], set()).add(r.status_code)
+        fw.errors["param_get"] = IpcError("node-unavailable", "did not respond", {"retry_after_s": 3})
+        r = client.get("/api/v1/apps/temp_sensor/configurations/rate")
+        assert r.status_code == 503 and r.headers["Retry-After"] == "3"
+        check(doc, "GET", "/api/v1/apps/temp_sensor/configurations/rate", r)
         fw.stop()
         for path in ("/api/v1/health", "/api/v1/apps", "/api/v1/apps/temp_sensor",
                      "/api/v1/components/test-robot/hosts", "/api/v1/apps/temp_sensor/docs"):
@@ -254,14 +285,18 @@ def test_every_route_answers_per_the_document(doc):
         assert seen[f"GET /{collection}/{param}/{relation}"] == expected
     assert seen["GET /apps/{app_id}/data/docs"] == {200}
     assert seen["GET /areas/{area_id}/docs"] == {404}
+    assert {200, 400, 401, 403, 413, 415} <= seen["PUT /components/{component_id}/configurations/{config_id}"]
+    assert {204, 401} <= seen["DELETE /apps/{app_id}/configurations/{config_id}"]
+    assert {207, 401} <= seen["DELETE /functions/{function_id}/configurations"]
 
 
 def test_every_operation_with_a_json_body_documents_the_body_errors(doc):
     """415 (not declared JSON), 413 (too large) and 408 (too slow): app/routes/bodies.py, on every body."""
     with_body = [(method, path, op) for path, ops in doc["paths"].items() for method, op in ops.items()
                  if "requestBody" in op]
-    # PUT data of 4 collections; POST and PUT cyclic-subscriptions of 3; POST and PUT executions of 3
-    assert len(with_body) == 16
+    # PUT data of 4 collections; POST and PUT cyclic-subscriptions of 3; POST and PUT executions of 3;
+    # PUT configurations of 3
+    assert len(with_body) == 19
     for method, path, op in with_body:
         assert list(op["requestBody"]["content"]) == ["application/json"], (method, path)
         assert {"408", "413", "415"} <= set(op["responses"]), (method, path)

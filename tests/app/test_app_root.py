@@ -39,11 +39,12 @@ def test_root_says_what_is_not_served(client):
     """The capabilities say what answers 501 (app/routes/unimplemented.py) and what is not there yet."""
     body = client.get("/api/v1/").get_json()
     caps = body["capabilities"]
-    for name in ("bulk_data", "locking", "scripts", "lifecycle", "updates", "configurations",
+    for name in ("bulk_data", "locking", "scripts", "lifecycle", "updates",
                  "faults", "logs", "triggers"):
         assert caps[name] is False, name
     assert caps["cyclic_subscriptions"] is True and caps["docs"] is True
     assert caps["operations"] is True and caps["async_actions"] is True
+    assert caps["configurations"] is True  # configurations: app/routes/configurations.py
     assert "GET /api/v1/updates" in body["endpoints"]
     assert "POST /api/v1/apps/{app_id}/locks" in body["endpoints"]
 
@@ -153,6 +154,8 @@ def test_entity_docs_fill_in_the_entity(client):
         "/components/test-robot/cyclic-subscriptions/{subscription_id}",
         "/components/test-robot/cyclic-subscriptions/{subscription_id}/events",
         "/components/test-robot/docs", "/components/test-robot/data/docs",
+        # configurations: app/routes/configurations.py
+        "/components/test-robot/configurations", "/components/test-robot/configurations/{config_id}",
         # medkit's routes not served here (501), in the order of unimplemented.ROUTES
         *dict.fromkeys(path.replace("{component_id}", "test-robot")
                        for _, path, collection in unimplemented.paths() if collection == "components"),

@@ -231,6 +231,10 @@ class FakeWorker:
         if cmd == "publish":
             return {"topic": args.get("topic"), "type": args.get("type"), "status": "published",
                     "subscriber_count": 1, "unmatched_subscriber_count": 0}
+        # configurations: the param_* commands answer what a test puts in ``fw.replies`` (a dict or args -> dict)
+        reply = getattr(self, "replies", {}).get(cmd)
+        if reply is not None:
+            return reply(args) if callable(reply) else reply
         return IpcError("unknown-command", f"unknown command {cmd!r}")
 
 
