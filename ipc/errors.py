@@ -36,6 +36,8 @@ CODES: frozenset[str] = frozenset({
     "unavailable",
     "subscriptions-full",
     "deadline-exceeded",
+    # faults (rosworker/faults.py)
+    "no-such-fault",
 })
 
 

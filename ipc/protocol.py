@@ -35,6 +35,8 @@ COMMANDS = (
     "ping", "stats", "graph", "sample", "subscribe", "evict", "publish", "type_info", "pool",
     "sub_create", "sub_list", "sub_get", "sub_update", "sub_delete",
     "debug_sleep",
+    # faults (rosworker/faults.py)
+    "fault_list", "fault_get", "fault_clear", "fault_events",
 )
 # Commands answered from counters by the control thread, without queueing behind ROS work;
 # clients send them to the control socket.
