@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import collections
 import logging
+import socket
 import time
 from collections.abc import Iterator
 from typing import Any
@@ -67,7 +68,8 @@ class FaultStream:
             self.dropped += 1
         self.wake.set()
 
-    def body(self, replay) -> Iterator[bytes]:
+    def body(self, replay, sock: Any = None) -> Iterator[bytes]:
+        """The response body; ``sock`` (gunicorn's connection) is looked at for a client that left."""
         hub = self.hub
         stalled = gevent.Timeout(hub.send_timeout, SendStalled(hub.send_timeout))
         hub.streams.add(self)
@@ -99,7 +101,7 @@ class FaultStream:
                         stalled.cancel()
                     quiet_since = time.monotonic()
                     continue
-                if _worker_stopping():
+                if _worker_stopping() or _gone(sock):
                     return
                 now = time.monotonic()
                 if now - quiet_since >= KEEPALIVE:
@@ -115,6 +117,19 @@ class FaultStream:
                     self.wake.wait(min(STOP_CHECK, KEEPALIVE - (now - quiet_since)))
         finally:
             hub.streams.discard(self)
+
+
+def _gone(sock: Any) -> bool:
+    """True when the client closed its connection (a peek at the real socket, never waiting)."""
+    real = getattr(sock, "_sock", sock)
+    if real is None:
+        return False
+    try:
+        return real.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT) == b""
+    except (BlockingIOError, InterruptedError):
+        return False
+    except OSError:
+        return True
 
 
 class FaultHub:

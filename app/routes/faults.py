@@ -218,7 +218,7 @@ def stream():
         return ros.call("fault_events", {"after": after}, faultstream.REPLAY_TIMEOUT).get("events") or []
 
     return current_app.response_class(
-        faultstream.FaultStream(hub, last_id).body(replay), mimetype="text/event-stream",
+        faultstream.FaultStream(hub, last_id).body(replay, request.environ.get("gunicorn.socket")), mimetype="text/event-stream",
         headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
 
 
