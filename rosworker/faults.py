@@ -438,17 +438,19 @@ class FaultManager:
         self.store.event(event_id, event)
         self.send([channel.FAULT_KEY, protocol.pack({"id": event_id, **event})])
 
-    def _write(self, code: str) -> None:
+    def _write(self, code: str, changed: bool = True) -> None:
         self._unwritten.discard(code)
         self._dirty[code] = time.monotonic()
         self.store.put(code, self.faults[code])
+        if changed:  # a status changed: /health shows it at once
+            self._publish_stats()
 
     def _flush(self, force: bool = False) -> None:
         """Write the faults whose last report changed only their times, at most every PERSIST_EVERY s."""
         now = time.monotonic()
         for code in list(self._unwritten):
             if code in self.faults and (force or now - self._dirty.get(code, 0.0) >= PERSIST_EVERY):
-                self._write(code)
+                self._write(code, changed=False)
             elif code not in self.faults:
                 self._unwritten.discard(code)
 
@@ -492,7 +494,7 @@ class FaultManager:
                 continue
             record.update(status=CLEARED, fails=0, oks=0, confirmed=False, cleared_ns=wall)
             self._event("fault_cleared", record)
-            self._write(code)
+            self._write(code, changed=False)  # /health once, below
             cleared.append(code)
         if cleared:
             self._publish_stats()

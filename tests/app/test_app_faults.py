@@ -8,6 +8,7 @@ status names of its own, so that the faults of one never touch another's.
 from __future__ import annotations
 
 import json
+import subprocess
 import uuid
 
 import pytest
@@ -16,7 +17,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from tests.support.diagpub import DiagPub
-from tests.support.gateway import Gateway
+from tests.support.gateway import BIN, Gateway
 from tests.support.procs import poll_until, publisher
 
 TOKEN = "fault-clear-token-0123"
@@ -337,6 +338,15 @@ def test_health_metrics_and_capabilities_show_the_faults(gw, diag):
     line = next(x for x in metrics.splitlines() if x.startswith('sovd_faults_active{severity="ERROR"}'))
     assert float(line.split()[-1]) >= 1
     assert gw.get("/").json()["capabilities"]["faults"] is True
+    # sovd-probe faults: the same, from a shell on the robot
+    probe = subprocess.run([str(BIN / "sovd-probe"), "--runtime-dir", gw.runtime_dir, "faults"],
+                           capture_output=True, text=True, timeout=30)
+    assert probe.returncode == 0, probe.stderr
+    line = next(x for x in probe.stdout.splitlines() if x.startswith(code))
+    assert "CONFIRMED" in line and "ERROR" in line and "/health_driver" in line
+    probe = subprocess.run([str(BIN / "sovd-probe"), "--runtime-dir", gw.runtime_dir, "--json", "faults", "--all"],
+                           capture_output=True, text=True, timeout=30)
+    assert code in {f["fault_code"] for f in json.loads(probe.stdout)["result"]["items"]}
 
 
 # ---- hostile queries -------------------------------------------------------------------------------------
