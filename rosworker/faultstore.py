@@ -182,6 +182,12 @@ class FaultStore:
             if self._thread.is_alive():
                 log.warning("fault store: the last writes did not finish within %g s", timeout)
                 return
+        elif self._db is not None and (self._faults or self._events):
+            # never started (or the writer gave up): what is pending is written here
+            try:
+                self._write(self._faults, self._events)
+            except sqlite3.Error as exc:
+                log.error("fault store %s: the last write failed (%s)", self.path, exc)
         self._close_db()
 
     # ---- the writer thread -------------------------------------------------------------------------
