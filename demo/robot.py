@@ -123,6 +123,9 @@ def build() -> list[Node]:
         msg.present = True
 
     _periodic(battery, "battery", BatteryState, 2, battery_state)
+    from demo.battery import add_diagnostics  # faults: the battery warns on /diagnostics when low (demo/battery.py)
+
+    add_diagnostics(battery)
     return [engine, brakes, odometry, lights, diag, camera, battery]
 
 

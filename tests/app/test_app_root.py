@@ -40,7 +40,7 @@ def test_root_says_what_is_not_served(client):
     body = client.get("/api/v1/").get_json()
     caps = body["capabilities"]
     for name in ("bulk_data", "locking", "scripts", "lifecycle", "updates", "operations", "configurations",
-                 "faults", "logs", "triggers"):
+                 "logs", "triggers"):
         assert caps[name] is False, name
     assert caps["cyclic_subscriptions"] is True and caps["docs"] is True
     assert "GET /api/v1/updates" in body["endpoints"]
