@@ -62,6 +62,8 @@ IPC_ANSWERS: dict[str, tuple[int, str, str | None, int | None]] = {
     "parameter-read-only": (403, "vendor-error", "x-medkit-ros2-parameter-read-only", None),
     "invalid-parameter-value": (400, "invalid-parameter", None, None),
     "parameter-failed": (500, "internal-error", None, None),
+    # faults (app/routes/faults.py)
+    "no-such-fault": (404, "resource-not-found", None, None),
 }
 
 # HTTP status -> SOVD error_code for errors that Werkzeug raises.

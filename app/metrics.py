@@ -236,6 +236,7 @@ class RosWorkerCollector:
         yield from families.values()
         details = stats.get("details") if isinstance(stats.get("details"), dict) else {}
         yield from self._labelled(details)
+        yield from _fault_metrics(stats.get("faults"))  # faults (rosworker/faults.py)
 
     def _labelled(self, details: dict) -> Iterator[Any]:
         """The details' maps: one counter family per map (two for a command's count and time)."""
@@ -260,6 +261,29 @@ class RosWorkerCollector:
                         seconds.add_metric([str(key)], (_number(totals.get("time_us")) or 0.0) / 1e6)
                 yield count
                 yield seconds
+
+
+def _fault_metrics(part: Any) -> Iterator[Any]:
+    """faults: ``sovd_faults_active{severity}`` and the fault store's counters (rosworker/faults.py)."""
+    from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
+
+    if not isinstance(part, dict):
+        return
+    by = part.get("active_by_severity")
+    family = GaugeMetricFamily("sovd_faults_active", "Active faults (PREFAILED, CONFIRMED, PREPASSED), by severity",
+                               labels=["severity"])
+    for label, value in sorted(by.items() if isinstance(by, dict) else []):
+        if _number(value) is not None:
+            family.add_metric([str(label)], _number(value))
+    yield family
+    for key, name, kind, text in (
+            ("confirmed", "sovd_faults_confirmed", GaugeMetricFamily, "Confirmed faults"),
+            ("store_size", "sovd_faults_stored", GaugeMetricFamily, "Faults kept in the fault store"),
+            ("store_write_errors", "sovd_fault_store_write_errors", CounterMetricFamily,
+             "Failed writes of the fault store"),
+            ("refused", "sovd_faults_refused", CounterMetricFamily, "New faults not recorded at max_faults")):
+        if _number(part.get(key)) is not None:
+            yield kind(name, text, value=_number(part[key]))
 
 
 # ---- the supervisor ------------------------------------------------------------------------------

@@ -55,6 +55,9 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
     app.register_blueprint(discovery.bp)
     app.register_blueprint(data.bp)
     app.register_blueprint(subscriptions.bp)
+    from .routes import faults  # faults: /diagnostics as SOVD faults
+
+    app.register_blueprint(faults.bp)
     app.register_blueprint(unimplemented.bp)  # medkit's routes not served here: 501
     app.register_blueprint(ui.bp)  # the dashboard at /ui/ (app/ui/)
     from .routes import operations  # operations: services and actions

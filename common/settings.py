@@ -186,6 +186,19 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("max_parameter_clients", int, 64, "LRU cap on nodes with pooled parameter clients", 1, 4096),
     Setting("parameter_client_idle_s", float, 300.0, "seconds a node's unused parameter clients are kept",
             1, 86400),
+    # --- faults: /diagnostics as SOVD faults (rosworker/faults.py, README "Faults") ---
+    Setting("state_dir", str, "", "directory of the fault store faults.db (default: $STATE_DIRECTORY, "
+            "else $XDG_STATE_HOME/sovd-gateway, else ~/.local/state/sovd-gateway)"),
+    Setting("fault_confirm_count", int, 3, "failing reports that confirm a fault", 1, 10000),
+    Setting("fault_confirm_s", float, 1.0, "seconds of failing reports that confirm a fault", 0.01, 86400),
+    Setting("fault_heal_count", int, 3, "passing reports that heal a fault", 1, 10000),
+    Setting("fault_stale_s", float, 10.0, "seconds without a report before a status is STALE (CRITICAL)",
+            0.1, 86400, "off"),
+    Setting("max_faults", int, 1000, "faults kept; the oldest healed or cleared go first", 1, 100000),
+    Setting("fault_codes", str, "", "fault codes for status names: 'name=CODE;other name=CODE2'"),
+    Setting("fault_snapshot_topics", str, "", "topics captured at confirmation: 'CODE_PATTERN=/t1,/t2;...'"),
+    Setting("allow_fault_clear", bool, False, "allow DELETE .../faults (clearing faults)"),
+    Setting("max_fault_streams", int, 16, "open GET /faults/stream streams per HTTP worker", 1, 1000),
 )
 
 BY_NAME = {s.name: s for s in SETTINGS}
@@ -379,6 +392,14 @@ def default_runtime_dir(environ: dict[str, str] | os._Environ) -> str:
         return environ["RUNTIME_DIRECTORY"].split(":")[0]
     base = environ.get("XDG_RUNTIME_DIR") or tempfile.gettempdir()
     return os.path.join(base, f"sovd-gateway-{os.getuid()}")
+
+
+def default_state_dir(environ: dict[str, str] | os._Environ) -> str:
+    """The fault store's directory (faults): ``$STATE_DIRECTORY`` (systemd), else XDG's state home."""
+    if environ.get("STATE_DIRECTORY"):
+        return environ["STATE_DIRECTORY"].split(":")[0]
+    base = environ.get("XDG_STATE_HOME") or os.path.join(os.path.expanduser("~"), ".local", "state")
+    return os.path.join(base, "sovd-gateway")
 
 
 def ensure_runtime_dir(path: str) -> str:

@@ -128,6 +128,10 @@ def build() -> list[Node]:
         msg.present = True
 
     _periodic(battery, "battery", BatteryState, 2, battery_state)
+    # faults: the battery warns on /diagnostics while its charge is low (demo/battery.py)
+    from demo.battery import add_diagnostics
+
+    add_diagnostics(battery)
     return [engine, brakes, odometry, lights, diag, camera, battery]
 
 

@@ -52,6 +52,8 @@ CODES: frozenset[str] = frozenset({
     "parameter-read-only",
     "invalid-parameter-value",
     "parameter-failed",
+    # faults (rosworker/faults.py)
+    "no-such-fault",
 })
 
 

@@ -27,6 +27,8 @@ INTERVALS = {"fast": 0.05, "normal": 0.2, "slow": 0.5}
 CONTROL_KEY = b"c|"
 HEARTBEAT_KEY = b"h|"
 DATA_PREFIX = b"d|"
+# faults (rosworker/faults.py): ``f|`` + msgpack {"id", "event_type", "fault", "timestamp"}, one per event
+FAULT_KEY = b"f|"
 # Per subscriber: frames queued for a slow HTTP worker beyond this are dropped by ZeroMQ,
 # never buffered without bound (a worker that keeps up holds a handful).
 HIGH_WATER = 10000

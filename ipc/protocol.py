@@ -39,6 +39,8 @@ COMMANDS = (
     "op_list", "op_call", "op_goal", "op_goals", "op_exec", "op_cancel",
     # configurations (rosworker/parameters.py)
     "param_list", "param_get", "param_set", "param_reset", "param_reset_all",
+    # faults (rosworker/faults.py)
+    "fault_list", "fault_get", "fault_clear", "fault_events",
 )
 # Commands answered from counters by the control thread, without queueing behind ROS work;
 # clients send them to the control socket.

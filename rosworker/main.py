@@ -223,6 +223,20 @@ class Worker:
                                 restore=self.restart)
         commands.handlers.update(operations.handlers)
         operations.repeat(OPERATIONS_CHECK_EVERY)
+        # faults: /diagnostics as SOVD faults, kept in the state dir's fault store (rosworker/faults.py)
+        from .faults import FaultManager
+        from .faults import handlers as fault_handlers
+        from .faultstore import FaultStore
+        faults = FaultManager(node, executor, pool, stats,
+                              FaultStore(cfg.state_dir or config.default_state_dir(os.environ)), graph=graph,
+                              endpoints=endpoints, send=streams.send_frames,
+                              confirm_count=cfg.fault_confirm_count, confirm_s=cfg.fault_confirm_s,
+                              heal_count=cfg.fault_heal_count, stale_s=cfg.fault_stale_s,
+                              max_faults=cfg.max_faults, codes=cfg.fault_codes,
+                              snapshot_topics=cfg.fault_snapshot_topics)
+        faults.load()
+        faults.start()
+        commands.handlers.update(fault_handlers(faults))
         # What the executor's loop runs: the queued commands, and a look at each topic that
         # callers wait on (its first message) on every round.
         executor.serve(commands.handlers)
@@ -281,6 +295,7 @@ class Worker:
             executor.guarded("the pool's shutdown", pool.shutdown)
             executor.guarded("the operations' shutdown", operations.shutdown)  # operations
             executor.guarded("the publishers' shutdown", publishers.shutdown)
+            executor.guarded("the fault store's shutdown", faults.shutdown, STATE_FLUSH_WAIT)  # faults
             executor.linger()
         finally:
             streams.close()

@@ -44,6 +44,7 @@ class Stats:
         self.commands: dict[str, list[int]] = {}
         self.ticks: dict[str, int] = {}  # stream timer rounds by interval
         self.current_task_started = 0.0  # monotonic; 0 while idle
+        self.faults: dict = {}  # faults: /health's x-medkit-faults, replaced whole (rosworker/faults.py)
 
     def task_started(self) -> float:
         now = time.monotonic()
@@ -107,4 +108,6 @@ class Stats:
                     part[key] = self.current_task_age_ms()
                 else:
                     part[key] = getattr(self, key)
+        if self.faults:  # faults (rosworker/faults.py): a dict replaced whole, never changed in place
+            answer["faults"] = self.faults
         return answer

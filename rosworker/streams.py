@@ -425,6 +425,10 @@ class StreamRegistry:
         self.executor.call_later(HEARTBEAT_EVERY, self._heartbeat)
         self._send([events.HEARTBEAT_KEY, protocol.pack({"pid": os.getpid(), "t": time.time_ns()})])
 
+    def send_frames(self, frames: list[bytes]) -> None:
+        """Publish ``frames`` (a key, then its parts) on the events channel (ROS thread; faults)."""
+        self._send(frames)
+
     def _send(self, frames: list[bytes]) -> None:
         if self._pub is None:
             return

@@ -3,6 +3,7 @@
     sovd-probe [--runtime-dir DIR | --endpoint URL] [--timeout S] [--json] COMMAND
       ping | stats | graph | sample TOPIC | evict TOPIC
       | watch TOPIC [--interval fast|normal|slow] [--bytes array|base64] [--count N] [--duration S]
+      | faults [--all]
 
 ``watch`` prints the frames the ROS worker publishes for TOPIC on its events
 channel (what cyclic-subscription streams are made of), one per line, until
@@ -74,6 +75,10 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("--count", type=int, default=0, metavar="N", help="stop after N frames")
             p.add_argument("--duration", type=int, default=600, metavar="S",
                            help="stop after S seconds (default 600; at most max_stream_duration)")
+    # faults (rosworker/faults.py): the active faults, or every fault kept
+    p = sub.add_parser("faults", help="the active faults (--all: also healed and cleared ones)")
+    p.add_argument("--all", action="store_true", dest="all_faults", help="every fault the store keeps")
+    _common(p, suppress=True)
     return parser
 
 
@@ -90,6 +95,9 @@ def _request(args: argparse.Namespace) -> tuple[str, dict[str, Any], float]:
         return "sample", {"topic": args.topic, "timeout_ms": max(1, int((timeout - 0.2) * 1000))}, timeout
     if args.command == "evict":
         return "evict", {"topic": args.topic}, timeout
+    if args.command == "faults":  # faults: fault_list, the active ones unless --all
+        statuses = ["PREFAILED", "CONFIRMED", "PREPASSED"] + (["HEALED", "CLEARED"] if args.all_faults else [])
+        return "fault_list", {"statuses": statuses}, timeout
     return args.command, {}, timeout
 
 
@@ -133,6 +141,13 @@ def _human(cmd: str, r: dict[str, Any]) -> str:
         return head + "\n" + json.dumps(r.get("data"), indent=2, ensure_ascii=False)
     if cmd == "evict":
         return f"{r.get('topic')}: " + ("evicted" if r.get("evicted") else "was not pooled")
+    if cmd == "fault_list":  # faults
+        items = r.get("items") or []
+        if not items:
+            return "no faults"
+        return "\n".join(f"{f.get('fault_code')}  {f.get('status')}  {f.get('severity_label')}  "
+                         f"x{f.get('occurrence_count')}  {','.join(f.get('reporting_sources') or [])}  "
+                         f"{f.get('description')}" for f in items)
     return json.dumps(r, indent=2)
 
 

@@ -23,7 +23,7 @@ SOVD_VERSION = openapi.SOVD_VERSION
 
 # medkit's capabilities that this gateway does not serve and whose routes are not in
 # unimplemented.ROUTES (later issues implement them).
-NOT_SERVED = ("faults", "logs", "triggers")
+NOT_SERVED = ("logs", "triggers")
 
 
 
@@ -42,6 +42,7 @@ def root():
             "authentication": bool(cfg.api_token),
             "docs": True,
             "cyclic_subscriptions": True,
+            "faults": True,  # faults (app/routes/faults.py)
             # medkit's features not served here.  Those of unimplemented.ROUTES answer 501;
             # those of NOT_SERVED answer 404 until the issues that implement them.
             **{name: False for name in NOT_SERVED},
@@ -128,6 +129,7 @@ def health():
                                 **((stats or {}).get("operations") or {})},
         # configurations: the parameter clients of the ROS worker (rosworker/parameters.py)
         "x-medkit-configurations": _configurations(stats),
+        "x-medkit-faults": faults_health(stats),  # faults (rosworker/faults.py)
     })
 
 
@@ -162,3 +164,19 @@ def _sections(stats: dict[str, Any] | None) -> tuple[dict[str, Any], dict[str, A
             provider["evictions"] = dict(details["evictions"])
     streams.update(metrics.stream_totals())
     return provider, executor, streams
+
+
+# ---- faults (rosworker/faults.py): /health's x-medkit-faults ------------------------------------------
+FAULT_HEALTH_KEYS = ("active", "confirmed", "store_size", "max_faults", "refused", "active_by_severity",
+                     "store_enabled", "store_writes", "store_write_errors", "store_pending", "last_write_error",
+                     "moved_aside", "diagnostics_arrays")
+
+
+def faults_health(stats: dict[str, Any] | None) -> dict[str, Any]:
+    """The fault manager's counters as the ROS worker last sent them (zeros before its first answer)."""
+    part = stats.get("faults") if isinstance(stats, dict) else None
+    section: dict[str, Any] = {"active": 0, "confirmed": 0, "store_size": 0, "max_faults": config().max_faults,
+                               "last_write_error": ""}
+    if isinstance(part, dict):
+        section.update({k: part[k] for k in FAULT_HEALTH_KEYS if k in part})
+    return section

@@ -39,8 +39,7 @@ def test_root_says_what_is_not_served(client):
     """The capabilities say what answers 501 (app/routes/unimplemented.py) and what is not there yet."""
     body = client.get("/api/v1/").get_json()
     caps = body["capabilities"]
-    for name in ("bulk_data", "locking", "scripts", "lifecycle", "updates",
-                 "faults", "logs", "triggers"):
+    for name in ("bulk_data", "locking", "scripts", "lifecycle", "updates", "logs", "triggers"):
         assert caps[name] is False, name
     assert caps["cyclic_subscriptions"] is True and caps["docs"] is True
     assert caps["operations"] is True and caps["async_actions"] is True

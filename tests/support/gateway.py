@@ -31,6 +31,12 @@ class Gateway(Proc):
         self._own_dir = runtime_dir is None
         self.runtime_dir = runtime_dir or tempfile.mkdtemp(prefix="sovd-gw-")
         os.chmod(self.runtime_dir, 0o700)
+        # faults: a private state dir (the fault store), removed at stop, unless the test names one
+        self.state_dir = args[args.index("--state-dir") + 1] if "--state-dir" in args else None
+        self._own_state = self.state_dir is None
+        if self._own_state:
+            self.state_dir = tempfile.mkdtemp(prefix="sovd-state-")
+            args = (*args, "--state-dir", self.state_dir)
         argv = [str(BIN / "sovd-gateway"), "--bind", f"127.0.0.1:{self.port}",
                 "--runtime-dir", self.runtime_dir, *args]
         super().__init__(argv, env=env, name="sovd-gateway", log_path=log_path)
@@ -98,4 +104,6 @@ class Gateway(Proc):
         code = super().stop(timeout)
         if self._own_dir:
             shutil.rmtree(self.runtime_dir, ignore_errors=True)
+        if self._own_state:  # faults
+            shutil.rmtree(self.state_dir, ignore_errors=True)
         return code

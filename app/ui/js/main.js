@@ -12,6 +12,7 @@ import { HealthPanel } from "./health.js";
 import { ItemView } from "./item.js";
 import { OperationsView } from "./ops.js"; // operations: services and actions
 import { EntityTree } from "./tree.js";
+import { FaultsPanel } from "./faults.js"; // faults
 
 const TREE_RELOAD_MS = 30000;
 const ROUTE = /^#\/(apps|components|functions)\/([A-Za-z0-9_-]+)\/data\/(.+)$/;
@@ -24,6 +25,7 @@ let overviewLoaded = false;
 
 const tree = new EntityTree($("tree"), $("tree-status"), $("search"), $("show-system"));
 const health = new HealthPanel($("health-body"), $("worker-badge"));
+new FaultsPanel($("faults-body")).start(); // faults: the Faults panel, live from the fault stream
 
 async function loadOverview() {
   try {

@@ -1,0 +1,183 @@
+"""``GET /api/v1/faults/stream``: medkit's real-time fault stream, as Server-Sent Events.
+
+One :class:`FaultHub` per HTTP worker process, made when its first stream
+opens (never before the fork): a ZeroMQ SUB socket on the ROS worker's events
+channel (``ipc/events.py``) subscribed to the fault events only (``f|``), and
+a reader greenlet that formats each event once and hands it to every open
+stream of the process.
+
+An event is medkit's: ``id: <n>``, ``event: fault_confirmed | fault_updated |
+fault_cleared`` and ``data: {"event_type", "fault", "timestamp"}``.  Event ids
+go on across restarts (the ROS worker keeps them in its fault store), so a
+client that reconnects with ``Last-Event-ID`` gets what it missed, replayed
+from the store (the last ``MAX_EVENTS``), then the live events.
+
+Bounds: ``max_fault_streams`` open streams per HTTP worker (503 past it, as
+medkit's client limit); ``STREAM_BUFFER`` events held for a slow client (the
+oldest go first; it may reconnect with ``Last-Event-ID``); a client that takes
+no frame for ``stream_send_timeout`` seconds is disconnected; a ``:`` keep-alive
+after ``KEEPALIVE`` seconds of silence.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import socket
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import gevent
+import gevent.event
+import orjson
+import zmq.green as zmq
+
+from common.process import PerProcess
+from ipc import events, protocol
+from ipc.errors import IpcError
+
+from .streams import KEEPALIVE, SendStalled, _worker_stopping
+
+log = logging.getLogger("sovd.http.faultstream")
+
+STREAM_BUFFER = 256       # events held for a slow client
+STOP_CHECK = 1.0          # seconds between two looks at whether this HTTP worker is stopping
+REPLAY_TIMEOUT = 2.0      # seconds the replay of missed events may take to fetch
+
+
+def chunk(event_id: int, event: dict[str, Any]) -> bytes:
+    """One SSE event as medkit formats it."""
+    kind = str(event.get("event_type", "")).replace("\r", "").replace("\n", "")
+    data = {"event_type": kind, "fault": event.get("fault"), "timestamp": event.get("timestamp")}
+    return b"id: %d\nevent: %s\ndata: %s\n\n" % (event_id, kind.encode(), orjson.dumps(data))
+
+
+class FaultStream:
+    def __init__(self, hub: FaultHub, last_id: int):
+        self.hub = hub
+        self.last_id = last_id          # the newest id this client has (or is sent in the replay)
+        self.frames: collections.deque[tuple[int, bytes]] = collections.deque()
+        self.wake = gevent.event.Event()
+        self.dropped = 0
+
+    def push(self, event_id: int, frame: bytes) -> None:
+        self.frames.append((event_id, frame))
+        while len(self.frames) > STREAM_BUFFER:
+            self.frames.popleft()
+            self.dropped += 1
+        self.wake.set()
+
+    def body(self, replay, sock: Any = None) -> Iterator[bytes]:
+        """The response body; ``sock`` (gunicorn's connection) is looked at for a client that left."""
+        hub = self.hub
+        stalled = gevent.Timeout(hub.send_timeout, SendStalled(hub.send_timeout))
+        hub.streams.add(self)
+        try:
+            pending: list[tuple[int, bytes]] = []
+            if self.last_id:
+                try:
+                    pending = [(e["id"], chunk(e["id"], e)) for e in replay(self.last_id)
+                               if isinstance(e, dict) and isinstance(e.get("id"), int)]
+                except IpcError as exc:
+                    log.info("fault stream: no replay after event %d: %s", self.last_id, exc.message)
+            # The head goes out at once (the client knows the stream is open), with a comment.
+            yield b": fault stream open\n\n"
+            quiet_since = time.monotonic()
+            while True:
+                event_id = None
+                if pending:
+                    event_id, frame = pending.pop(0)
+                elif self.frames:
+                    event_id, frame = self.frames.popleft()
+                    if event_id <= self.last_id:
+                        continue  # replayed already
+                if event_id is not None:
+                    self.last_id = max(self.last_id, event_id)
+                    stalled.start()
+                    try:
+                        yield frame
+                    finally:
+                        stalled.cancel()
+                    quiet_since = time.monotonic()
+                    continue
+                if _worker_stopping() or _gone(sock):
+                    return
+                now = time.monotonic()
+                if now - quiet_since >= KEEPALIVE:
+                    stalled.start()
+                    try:
+                        yield b": keep-alive\n\n"
+                    finally:
+                        stalled.cancel()
+                    quiet_since = now
+                    continue
+                self.wake.clear()
+                if not self.frames:
+                    self.wake.wait(min(STOP_CHECK, KEEPALIVE - (now - quiet_since)))
+        finally:
+            hub.streams.discard(self)
+
+
+def _gone(sock: Any) -> bool:
+    """True when the client closed its connection (a peek at the real socket, never waiting)."""
+    real = getattr(sock, "_sock", sock)
+    if real is None:
+        return False
+    try:
+        return real.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT) == b""
+    except (BlockingIOError, InterruptedError):
+        return False
+    except OSError:
+        return True
+
+
+class FaultHub:
+    def __init__(self, runtime_dir: str, send_timeout: float):
+        self.runtime_dir = runtime_dir
+        self.send_timeout = send_timeout
+        self.streams: set[FaultStream] = set()
+        self._ctx = zmq.Context()
+        sock = self._ctx.socket(zmq.SUB)
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.setsockopt(zmq.RCVHWM, events.HIGH_WATER)
+        sock.setsockopt(zmq.RECONNECT_IVL, 100)
+        sock.setsockopt(zmq.RECONNECT_IVL_MAX, 1000)
+        sock.setsockopt(zmq.MAXMSGSIZE, protocol.MAX_REPLY_FRAME)
+        sock.setsockopt(zmq.SUBSCRIBE, events.FAULT_KEY)
+        sock.connect(events.endpoint(runtime_dir))
+        self._sock = sock
+        self._reader = gevent.spawn(self._read)
+
+    def stop(self) -> None:
+        self._reader.kill(timeout=1)
+        self._sock.close(linger=0)
+        self._ctx.term()
+
+    def _read(self) -> None:
+        while True:
+            try:
+                frames = self._sock.recv_multipart()
+                if len(frames) < 2 or frames[0] != events.FAULT_KEY:
+                    continue
+                event = protocol.unpack(frames[1], protocol.MAX_REPLY_FRAME)
+                event_id = event.get("id")
+                if not isinstance(event_id, int):
+                    continue
+                frame = chunk(event_id, event)
+                for stream in list(self.streams):
+                    stream.push(event_id, frame)
+            except gevent.GreenletExit:
+                raise
+            except Exception:  # a malformed frame must not end the reader
+                log.exception("fault events: could not handle a frame")
+
+
+_HUBS: dict[str, PerProcess[FaultHub]] = {}
+
+
+def hub(runtime_dir: str, send_timeout: float) -> FaultHub:
+    per_process = _HUBS.get(runtime_dir)
+    if per_process is None:
+        per_process = _HUBS[runtime_dir] = PerProcess(lambda: FaultHub(runtime_dir, send_timeout), FaultHub.stop)
+    return per_process.get()

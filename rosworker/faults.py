@@ -1,0 +1,536 @@
+"""Faults: the robot's ``/diagnostics`` as SOVD faults, kept in the fault store (``faultstore.py``).
+
+One subscription to ``/diagnostics`` (``diagnostic_msgs/msg/DiagnosticArray``,
+reliable, depth ``DEPTH``), no callback: a timer on the ROS thread takes at
+most ``TAKE_PER_ROUND`` arrays every ``TAKE_EVERY`` s, so a flood of arrays
+costs bounded time per round (the rest wait in the subscription's queue,
+whose depth bounds them too).
+
+The mapping is medkit's diagnostic bridge's:
+
+- level OK reports a pass (healing); WARN is severity 1, ERROR 2, STALE 3
+  (CRITICAL);
+- the fault code is the status name upper-cased, every run of other
+  characters than letters and digits one ``_`` (``motor: Temperature`` ->
+  ``MOTOR_TEMPERATURE``), or what ``fault_codes`` names for it;
+- the reporting source: the ``hardware_id`` when it contains ``/`` (a node
+  name, medkit's ``use_hardware_id_as_source_id``); else the node whose name
+  starts the status name (``diagnostic_updater`` names statuses
+  ``<node name>: <task>``); else the only node that publishes
+  ``/diagnostics``; else ``/diagnostics`` itself (rclpy does not say which
+  publisher sent a message).
+
+The lifecycle (medkit's fault manager's states): a failing report makes the
+fault PREFAILED (a new occurrence: ``occurrence_count`` + 1); it is CONFIRMED
+after ``fault_confirm_count`` failing reports or ``fault_confirm_s`` seconds
+of failing, whichever comes first, or at once at severity CRITICAL; a
+passing report makes it PREPASSED, and ``fault_heal_count`` passing reports
+HEALED.  A failing report on a HEALED or CLEARED fault is a new occurrence.
+DELETE makes it CLEARED.  A status that stops arriving for ``fault_stale_s``
+seconds (a dead driver) is reported failing at CRITICAL with the message
+"stale".
+
+At confirmation a freeze frame is taken: the status's key/value pairs, and
+the newest message of each topic that ``fault_snapshot_topics`` names for the
+code (read from the pool; the topics are pooled when the fault turns
+PREFAILED, so that they have a message by then).  ``SNAPSHOTS_MAX`` frames of
+at most ``SNAPSHOT_BYTES`` each per fault.
+
+Events (``fault_confirmed``, ``fault_updated``, ``fault_cleared``) get ids
+that go on across restarts, are kept (``MAX_EVENTS``, also in the store) for
+``Last-Event-ID`` replay, and are published on the events channel
+(``ipc/events.py``, key ``f|``) for the HTTP workers' fault streams.
+"""
+
+from __future__ import annotations
+
+import collections
+import fnmatch
+import json
+import logging
+import re
+import time
+from collections.abc import Callable
+from typing import Any
+
+from ipc import events as channel
+from ipc import protocol
+from ipc.errors import IpcError
+
+from .faultstore import MAX_EVENTS, FaultStore
+
+log = logging.getLogger("sovd.rosworker.faults")
+
+TOPIC = "/diagnostics"
+TYPE = "diagnostic_msgs/msg/DiagnosticArray"
+DEPTH = 100                # arrays the subscription holds between two takes
+TAKE_EVERY = 0.05          # seconds between two takes
+TAKE_PER_ROUND = 50        # arrays taken per round at most
+STATUSES_PER_ARRAY = 1000  # statuses of one array looked at, at most
+TICK_EVERY = 0.1           # seconds between checks of the timers (confirm by time, stale)
+PERSIST_EVERY = 1.0        # seconds between writes of a fault whose status did not change
+PUBLISHERS_TTL = 1.0       # seconds the publishers of /diagnostics are cached
+CODE_MAX = 256
+SOURCES_MAX = 16           # reporting sources kept per fault
+VALUES_MAX = 64            # key/value pairs of a status kept for its freeze frame
+VALUE_CHARS = 1024
+SNAPSHOTS_MAX = 8          # freeze frames per fault
+SNAPSHOT_BYTES = 64 * 1024
+REFUSED_LOG_EVERY = 60.0
+
+PREFAILED, CONFIRMED, PREPASSED, HEALED, CLEARED = "PREFAILED", "CONFIRMED", "PREPASSED", "HEALED", "CLEARED"
+STATUSES = (PREFAILED, CONFIRMED, PREPASSED, HEALED, CLEARED)
+ACTIVE = (PREFAILED, CONFIRMED, PREPASSED)
+LABELS = {0: "INFO", 1: "WARN", 2: "ERROR", 3: "CRITICAL"}
+_NOT_ALNUM = re.compile(r"[^A-Za-z0-9]+")
+
+
+def fault_code(name: str) -> str:
+    """medkit's generated code: upper case, each run of non-alphanumerics one ``_``, none at the ends."""
+    return _NOT_ALNUM.sub("_", name).strip("_").upper()[:CODE_MAX]
+
+
+def parse_codes(text: str) -> dict[str, str]:
+    """``fault_codes``: ``status name=CODE;other name=CODE2`` -> {name: code}."""
+    out = {}
+    for item in (text or "").split(";"):
+        name, sep, code = item.rpartition("=")
+        if sep and name.strip() and fault_code(code):
+            out[name.strip()] = fault_code(code)
+    return out
+
+
+def parse_snapshot_topics(text: str) -> list[tuple[str, list[str]]]:
+    """``fault_snapshot_topics``: ``CODE_PATTERN=/topic,/topic2;OTHER*=/t3`` -> [(pattern, topics)]."""
+    out = []
+    for item in (text or "").split(";"):
+        pattern, sep, topics = item.partition("=")
+        names = [t.strip() for t in topics.split(",") if t.strip()]
+        if sep and pattern.strip() and names:
+            out.append((pattern.strip(), names[:SNAPSHOTS_MAX]))
+    return out
+
+
+def public(record: dict[str, Any]) -> dict[str, Any]:
+    """A fault as medkit lists it (``fault_to_json``): times in seconds, ``last_passed`` once passed."""
+    out: dict[str, Any] = {
+        "fault_code": record["code"], "severity": record["severity"], "description": record["description"],
+        "first_occurred": record["first_ns"] / 1e9, "last_occurred": record["last_ns"] / 1e9,
+    }
+    if record.get("passed_ns"):
+        out["last_passed"] = record["passed_ns"] / 1e9
+    out.update(occurrence_count=record["count"], status=record["status"],
+               reporting_sources=list(record["sources"]), severity_label=LABELS.get(record["severity"], "UNKNOWN"))
+    return out
+
+
+def _level(value: Any) -> int:
+    if isinstance(value, (bytes, bytearray)):
+        return value[0] if value else 0
+    return int(value)
+
+
+class FaultManager:
+    """Every fault, on the ROS thread; the store writes them on its own thread."""
+
+    def __init__(self, node, executor, pool, stats, store: FaultStore, *, graph=None, endpoints=None,
+                 send: Callable[[list[bytes]], None] = lambda frames: None, confirm_count: int = 3,
+                 confirm_s: float = 1.0, heal_count: int = 3, stale_s: float = 10.0, max_faults: int = 1000,
+                 codes: str = "", snapshot_topics: str = ""):
+        self.node = node
+        self.executor = executor
+        self.pool = pool
+        self.stats = stats
+        self.store = store
+        self.graph = graph
+        self.endpoints = endpoints
+        self.send = send
+        self.confirm_count = confirm_count
+        self.confirm_s = confirm_s
+        self.heal_count = heal_count
+        self.stale_s = stale_s
+        self.max_faults = max_faults
+        self.codes = parse_codes(codes)
+        self.snapshot_topics = parse_snapshot_topics(snapshot_topics)
+        self.faults: dict[str, dict[str, Any]] = {}
+        # code -> [monotonic last report, status name, source, stale already reported]
+        self.seen: collections.OrderedDict[str, list] = collections.OrderedDict()
+        self.values: dict[str, dict[str, Any]] = {}       # code -> the last failing status (freeze frame)
+        self.events: collections.deque[tuple[int, dict[str, Any]]] = collections.deque(maxlen=MAX_EVENTS)
+        self.next_event_id = 1
+        self._dirty: dict[str, float] = {}                 # code -> monotonic of the last write
+        self._unwritten: set[str] = set()
+        self._code_cache: dict[str, str] = {}
+        self._publishers: tuple[float, list[str]] = (0.0, [])
+        self._refused_logged = -REFUSED_LOG_EVERY
+        self.sub = None
+        self.cls = None
+        self.arrays = 0
+        self.refused = 0
+        self._publish_stats()
+
+    # ---- set-up (ROS thread, before the loop) -------------------------------------------------------
+    def load(self) -> None:
+        faults, events = self.store.load()
+        now = time.monotonic()
+        for code, record in faults.items():
+            if isinstance(record, dict) and record.get("status") in STATUSES and record.get("code") == code:
+                self.faults[code] = record
+                if record["status"] in ACTIVE:
+                    # reported again, or stale after fault_stale_s: a driver that died with the gateway
+                    self.seen[code] = [now, record.get("name", code), (record.get("sources") or [TOPIC])[0], False]
+        for event_id, event in events:
+            self.events.append((event_id, event))
+        if self.events:
+            self.next_event_id = self.events[-1][0] + 1
+        self._publish_stats()
+
+    def start(self) -> None:
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+        from . import msgtypes
+
+        self.cls = msgtypes.load_type(TYPE)
+        self.sub = self.node.create_subscription(self.cls, TOPIC, lambda _msg: None,
+                                                 QoSProfile(depth=DEPTH, reliability=ReliabilityPolicy.RELIABLE))
+        self.store.start()
+        self.executor.call_later(TAKE_EVERY, self._take_round)
+        self.executor.call_later(TICK_EVERY, self._tick_round)
+
+    def shutdown(self, timeout: float) -> None:
+        self._flush(force=True)
+        self.store.close(timeout)
+        if self.sub is not None:
+            self.node.destroy_subscription(self.sub)
+            self.sub = None
+
+    # ---- the timers ------------------------------------------------------------------------------------
+    def _take_round(self) -> None:
+        self.executor.call_later(TAKE_EVERY, self._take_round)
+        if self.sub is None:
+            return
+        for _ in range(TAKE_PER_ROUND):
+            taken = self.sub.handle.take_message(self.cls, False)
+            if taken is None:
+                break
+            self.arrays += 1
+            self.executor.guarded("a /diagnostics array", self.on_array, taken[0])
+
+    def _tick_round(self) -> None:
+        self.executor.call_later(TICK_EVERY, self._tick_round)
+        self.tick(time.monotonic())
+
+    def tick(self, now: float) -> None:
+        wall = time.time_ns()
+        for record in list(self.faults.values()):
+            if record["status"] == PREFAILED and wall - record["since_ns"] >= self.confirm_s * 1e9:
+                self._confirm(record, wall)
+        if self.stale_s:
+            for code, seen in list(self.seen.items()):
+                if not seen[3] and now - seen[0] >= self.stale_s:
+                    seen[3] = True
+                    self._failed(code, seen[1], 3, f"stale: no report for {self.stale_s:g} s", seen[2], None,
+                                 wall, stale=True)
+        self._flush()
+        self._publish_stats()
+
+    # ---- reports ---------------------------------------------------------------------------------------
+    def on_array(self, msg) -> None:
+        now, wall = time.monotonic(), time.time_ns()
+        for status in msg.status[:STATUSES_PER_ARRAY]:
+            name = status.name[:CODE_MAX]
+            code = self._code(name)
+            if not code:
+                continue
+            source = self._source(status)
+            seen = self.seen.get(code)
+            if seen is None:
+                if len(self.seen) >= max(self.max_faults, 1):
+                    self.seen.popitem(last=False)
+                self.seen[code] = [now, name, source, False]
+            else:
+                seen[0], seen[1], seen[2], seen[3] = now, name, source, False
+                self.seen.move_to_end(code)
+            level = _level(status.level)
+            if level == 0:
+                self._passed(code, wall)
+                continue
+            values = {"level": level, "name": name, "message": status.message[:VALUE_CHARS],
+                      "hardware_id": status.hardware_id[:VALUE_CHARS],
+                      "values": {kv.key[:VALUE_CHARS]: kv.value[:VALUE_CHARS] for kv in status.values[:VALUES_MAX]}}
+            self._failed(code, name, min(level, 3), status.message[:VALUE_CHARS], source, values, wall)
+
+    def _code(self, name: str) -> str:
+        code = self._code_cache.get(name)
+        if code is None:
+            code = self.codes.get(name) or fault_code(name)
+            if len(self._code_cache) >= 4096:
+                self._code_cache.clear()
+            self._code_cache[name] = code
+        return code
+
+    def _source(self, status) -> str:
+        hardware_id = status.hardware_id
+        if "/" in hardware_id:
+            return hardware_id[:CODE_MAX]
+        prefix, sep, _ = status.name.partition(":")
+        nodes = list(self.graph.nodes) if self.graph is not None else []
+        if sep and prefix.strip():
+            matches = [n for n in nodes if n.rsplit("/", 1)[-1] == prefix.strip()]
+            if len(matches) == 1:
+                return matches[0]
+        publishers = self._diagnostics_publishers()
+        if len(publishers) == 1:
+            return publishers[0]
+        return TOPIC
+
+    def _diagnostics_publishers(self) -> list[str]:
+        when, names = self._publishers
+        now = time.monotonic()
+        if now - when >= PUBLISHERS_TTL and self.endpoints is not None:
+            infos = self.endpoints.publishers(TOPIC)
+            names = sorted({(i.node_namespace.rstrip("/") + "/" + i.node_name) for i in infos})
+            self._publishers = (now, names)
+        return names
+
+    def _failed(self, code: str, name: str, severity: int, message: str, source: str,
+                values: dict[str, Any] | None, wall: int, stale: bool = False) -> None:
+        record = self.faults.get(code)
+        changed = False
+        if record is None:
+            if not self._room():
+                return
+            record = self.faults[code] = {
+                "code": code, "name": name, "severity": severity, "description": message, "first_ns": wall,
+                "last_ns": wall, "passed_ns": 0, "count": 1, "status": PREFAILED, "sources": [source],
+                "snapshots": [], "fails": 1, "oks": 0, "since_ns": wall, "confirmed": False}
+            self._warm(code)
+            changed = True
+        elif record["status"] in (HEALED, CLEARED):
+            record.update(status=PREFAILED, first_ns=wall, fails=1, oks=0, since_ns=wall, confirmed=False,
+                          count=min(record["count"] + 1, 2**32 - 1))
+            self._warm(code)
+            changed = True
+        elif record["status"] == PREPASSED:
+            record.update(oks=0, fails=record["fails"] + 1,
+                          status=CONFIRMED if record["confirmed"] else PREFAILED)
+            if not record["confirmed"]:
+                record["since_ns"] = wall
+            changed = True
+        else:
+            record["fails"] = min(record["fails"] + 1, 2**31)
+        if record["severity"] != severity or record["description"] != message:
+            changed = changed or record["status"] == CONFIRMED
+            record["severity"], record["description"] = severity, message
+        if source not in record["sources"] and len(record["sources"]) < SOURCES_MAX:
+            record["sources"] = [*record["sources"], source]
+            changed = True
+        record["last_ns"] = wall
+        record["name"] = name
+        if values is not None:
+            self.values[code] = values
+        if record["status"] == PREFAILED and (record["fails"] >= self.confirm_count or severity >= 3
+                                              or wall - record["since_ns"] >= self.confirm_s * 1e9):
+            self._confirm(record, wall, stale)
+            return
+        if changed:
+            if record["confirmed"]:
+                self._event("fault_updated", record)
+            self._write(code)
+        else:
+            self._unwritten.add(code)
+
+    def _passed(self, code: str, wall: int) -> None:
+        record = self.faults.get(code)
+        if record is None or record["status"] in (HEALED, CLEARED):
+            return
+        record["passed_ns"] = wall
+        record["oks"] = 1 if record["status"] != PREPASSED else record["oks"] + 1
+        before = record["status"]
+        record["status"] = HEALED if record["oks"] >= self.heal_count else PREPASSED
+        if record["status"] != before:
+            if record["confirmed"]:
+                self._event("fault_updated", record)
+            self._write(code)
+        else:
+            self._unwritten.add(code)
+
+    def _confirm(self, record: dict[str, Any], wall: int, stale: bool = False) -> None:
+        record["status"] = CONFIRMED
+        record["confirmed"] = True
+        record["snapshots"] = self._snapshots(record, wall, stale)
+        self._event("fault_confirmed", record)
+        self._write(record["code"])
+
+    def _room(self) -> bool:
+        """Room for one more fault: the oldest healed or cleared one goes at ``max_faults``."""
+        if len(self.faults) < self.max_faults:
+            return True
+        done = [r for r in self.faults.values() if r["status"] in (HEALED, CLEARED)]
+        if done:
+            oldest = min(done, key=lambda r: r["last_ns"])
+            del self.faults[oldest["code"]]
+            self.values.pop(oldest["code"], None)
+            self._dirty.pop(oldest["code"], None)
+            self._unwritten.discard(oldest["code"])
+            self.store.put(oldest["code"], None)
+            return True
+        self.refused += 1
+        now = time.monotonic()
+        if now - self._refused_logged >= REFUSED_LOG_EVERY:
+            self._refused_logged = now
+            log.warning("max_faults (%d) active faults held: a new fault is not recorded (%d refused so far); "
+                        "raise max_faults or clear faults", self.max_faults, self.refused)
+        return False
+
+    # ---- snapshots -----------------------------------------------------------------------------------
+    def _topics_for(self, code: str) -> list[str]:
+        out: list[str] = []
+        for pattern, topics in self.snapshot_topics:
+            if fnmatch.fnmatchcase(code, pattern):
+                out.extend(t for t in topics if t not in out)
+        return out[:SNAPSHOTS_MAX - 1]
+
+    def _warm(self, code: str) -> None:
+        """Pool the code's snapshot topics now, so that they have a message at confirmation."""
+        for topic in self._topics_for(code):
+            try:
+                self.pool.subscribe(topic)
+            except IpcError as exc:
+                log.debug("snapshot topic %s: %s", topic, exc.message)
+
+    def _snapshots(self, record: dict[str, Any], wall: int, stale: bool) -> list[dict[str, Any]]:
+        code = record["code"]
+        frames = []
+        values = self.values.get(code)
+        if values is not None and not stale:
+            frames.append(self._frame(record["name"], TOPIC, "diagnostic_msgs/msg/DiagnosticStatus",
+                                      json.dumps(values, separators=(",", ":")), wall))
+        for topic in self._topics_for(code):
+            try:
+                result = self.pool.peek(topic, "array")
+            except IpcError as exc:
+                frames.append({**self._frame(topic, topic, "", "{}", wall), "error": exc.message[:300]})
+                continue
+            if result is None or result.get("status") != "data":
+                continue
+            text = bytes(result["data_json"])
+            frames.append(self._frame(topic, topic, result.get("type") or "", text.decode("utf-8", "replace"),
+                                      wall))
+        return frames[:SNAPSHOTS_MAX]
+
+    @staticmethod
+    def _frame(name: str, topic: str, message_type: str, data: str, wall: int) -> dict[str, Any]:
+        frame: dict[str, Any] = {"type": "freeze_frame", "name": name, "topic": topic,
+                                 "message_type": message_type, "captured_at_ns": wall}
+        if len(data) > SNAPSHOT_BYTES:
+            frame.update(data="{}", truncated=len(data))
+        else:
+            frame["data"] = data
+        return frame
+
+    # ---- events and writes ------------------------------------------------------------------------------
+    def _event(self, event_type: str, record: dict[str, Any]) -> None:
+        event_id = self.next_event_id
+        self.next_event_id += 1
+        event = {"event_type": event_type, "fault": public(record), "timestamp": time.time()}
+        self.events.append((event_id, event))
+        self.store.event(event_id, event)
+        self.send([channel.FAULT_KEY, protocol.pack({"id": event_id, **event})])
+
+    def _write(self, code: str, changed: bool = True) -> None:
+        self._unwritten.discard(code)
+        self._dirty[code] = time.monotonic()
+        self.store.put(code, self.faults[code])
+        if changed:  # a status changed: /health shows it at once
+            self._publish_stats()
+
+    def _flush(self, force: bool = False) -> None:
+        """Write the faults whose last report changed only their times, at most every PERSIST_EVERY s."""
+        now = time.monotonic()
+        for code in list(self._unwritten):
+            if code in self.faults and (force or now - self._dirty.get(code, 0.0) >= PERSIST_EVERY):
+                self._write(code, changed=False)
+            elif code not in self.faults:
+                self._unwritten.discard(code)
+
+    def _publish_stats(self) -> None:
+        by_severity = dict.fromkeys(LABELS.values(), 0)
+        active = confirmed = 0
+        for record in self.faults.values():
+            if record["status"] in ACTIVE:
+                active += 1
+                by_severity[LABELS.get(record["severity"], "ERROR")] += 1
+            if record["status"] == CONFIRMED:
+                confirmed += 1
+        store = self.store
+        self.stats.faults = {  # replaced whole: the control thread reads it (rosworker/stats.py)
+            "active": active, "confirmed": confirmed, "store_size": len(self.faults),
+            "max_faults": self.max_faults, "refused": self.refused, "active_by_severity": by_severity,
+            "diagnostics_arrays": self.arrays, "store_enabled": store.enabled, "store_path": store.path,
+            "store_writes": store.writes, "store_write_errors": store.write_errors,
+            "store_pending": store.pending + len(self._unwritten),
+            "last_write_error": store.last_write_error, "moved_aside": store.moved_aside,
+        }
+
+    # ---- commands ---------------------------------------------------------------------------------------
+    def listing(self, statuses: list[str]) -> list[dict[str, Any]]:
+        wanted = set(statuses)
+        return [public(self.faults[c]) for c in sorted(self.faults) if self.faults[c]["status"] in wanted]
+
+    def get(self, code: str) -> dict[str, Any]:
+        record = self.faults.get(code)
+        if record is None:
+            raise IpcError("no-such-fault", "Fault not found", {"fault_code": code[:CODE_MAX]})
+        return {"fault": public(record), "snapshots": list(record["snapshots"]),
+                "first_ns": record["first_ns"], "last_ns": record["last_ns"]}
+
+    def clear(self, codes: list[str]) -> list[str]:
+        cleared = []
+        wall = time.time_ns()
+        for code in codes:
+            record = self.faults.get(code)
+            if record is None or record["status"] == CLEARED:
+                continue
+            record.update(status=CLEARED, fails=0, oks=0, confirmed=False, cleared_ns=wall)
+            self._event("fault_cleared", record)
+            self._write(code, changed=False)  # /health once, below
+            cleared.append(code)
+        if cleared:
+            self._publish_stats()
+        return cleared
+
+    def events_after(self, after: int) -> list[dict[str, Any]]:
+        return [{"id": i, **e} for i, e in self.events if i > after]
+
+
+# ---- the queued commands (ipc/PROTOCOL.md "Faults"); the HTTP side has checked what a client sent ----
+def _codes(value: Any) -> list[str]:
+    if not isinstance(value, list) or len(value) > 100_000 or not all(
+            isinstance(c, str) and 0 < len(c) <= CODE_MAX for c in value):
+        raise IpcError("bad-request", f"codes: expected a list of fault codes of 1 to {CODE_MAX} characters")
+    return value
+
+
+def handlers(manager: FaultManager) -> dict[str, Callable]:
+    """``fault_list``, ``fault_get``, ``fault_clear`` and ``fault_events``: name -> handler(task)."""
+    def fault_list(task) -> None:
+        statuses = task.args.get("statuses")
+        if not isinstance(statuses, list) or not all(s in STATUSES for s in statuses):
+            raise IpcError("bad-request", "statuses: expected a list of " + ", ".join(STATUSES))
+        task.reply({"items": manager.listing(statuses)})
+
+    def fault_get(task) -> None:
+        task.reply(manager.get(_codes([task.args.get("code")])[0]))
+
+    def fault_clear(task) -> None:
+        task.reply({"cleared": manager.clear(_codes(task.args.get("codes")))})
+
+    def fault_events(task) -> None:
+        after = task.args.get("after", 0)
+        if isinstance(after, bool) or not isinstance(after, int) or after < 0:
+            raise IpcError("bad-request", "after: expected an event id (a non-negative integer)")
+        task.reply({"events": manager.events_after(after), "next_id": manager.next_event_id})
+
+    return {"fault_list": fault_list, "fault_get": fault_get, "fault_clear": fault_clear,
+            "fault_events": fault_events}

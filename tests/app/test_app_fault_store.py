@@ -1,0 +1,166 @@
+"""The fault store through the real gateway: restarts, a SIGKILL mid-burst, a corrupt file, max_faults."""
+
+from __future__ import annotations
+
+import os
+import signal
+import sqlite3
+import tempfile
+
+import pytest
+import requests
+
+from tests.support.diagpub import DiagPub
+from tests.support.gateway import Gateway
+from tests.support.procs import poll_until
+
+FAST = ("--fault-confirm-count", "1", "--fault-heal-count", "1", "--fault-stale-s", "0")
+
+
+@pytest.fixture
+def state_dir():
+    path = tempfile.mkdtemp(prefix="sovd-state-test-")
+    yield path
+    import shutil
+
+    shutil.rmtree(path, ignore_errors=True)
+
+
+@pytest.fixture
+def diag():
+    started: list[DiagPub] = []
+
+    def make(node: str, rate: float = 10) -> DiagPub:
+        pub = DiagPub(node, "/", rate)
+        started.append(pub)
+        return pub
+
+    yield make
+    for pub in started:
+        pub.stop()
+
+
+def faults(gw: Gateway, status: str = "all") -> dict[str, dict]:
+    return {f["fault_code"]: f for f in gw.get("/faults", params={"status": status}).json()["items"]}
+
+
+def written(gw: Gateway) -> bool:
+    section = gw.get("/health").json()["x-medkit-faults"]
+    return section["store_pending"] == 0 and section["store_writes"] > 0
+
+
+def integrity(path: str) -> str:
+    db = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+    try:
+        return db.execute("PRAGMA integrity_check").fetchone()[0]
+    finally:
+        db.close()
+
+
+def test_faults_survive_a_gateway_restart(state_dir, diag):
+    pub = diag("persist_driver", rate=5)
+    pub.set([{"name": "persist: motor", "level": 2, "message": "hot", "values": {"t": "99"}}])
+    gw = Gateway(*FAST, "--state-dir", state_dir)
+    try:
+        poll_until(lambda: faults(gw).get("PERSIST_MOTOR", {}).get("status") == "CONFIRMED", 20,
+                   message="confirmed")
+        pub.set([], publish=False)  # nothing reports from here on: the record stays as it is
+        poll_until(lambda: written(gw), 10, message="written")
+        before = faults(gw)["PERSIST_MOTOR"]
+        detail_before = gw.get("/apps/persist_driver/faults/PERSIST_MOTOR").json()
+    finally:
+        gw.stop()
+    gw = Gateway(*FAST, "--state-dir", state_dir)
+    try:
+        after = faults(gw)["PERSIST_MOTOR"]
+        assert after == before
+        detail = gw.get("/apps/persist_driver/faults/PERSIST_MOTOR").json()
+        assert detail["environment_data"] == detail_before["environment_data"]
+        assert detail["environment_data"]["snapshots"][0]["data"]["values"] == {"t": "99"}
+    finally:
+        gw.stop()
+    assert integrity(os.path.join(state_dir, "faults.db")) == "ok"
+
+
+def test_a_sigkill_of_the_ros_worker_mid_burst_loses_no_confirmed_fault(state_dir, diag):
+    gw = Gateway(*FAST, "--state-dir", state_dir)
+    try:
+        steady = diag("kill_steady", rate=2)
+        steady.set([{"name": f"kill steady {i}", "level": 2, "message": "bad"} for i in range(5)])
+        codes = {f"KILL_STEADY_{i}" for i in range(5)}
+        poll_until(lambda: codes <= {c for c, f in faults(gw).items() if f["status"] == "CONFIRMED"}, 20,
+                   message="the steady faults confirmed")
+        poll_until(lambda: written(gw), 10, message="written")
+        steady.set([], publish=False)
+        # the burst: 200 statuses flipping between ERROR and OK at 50 Hz, so every round writes
+        burst = diag("kill_burst", rate=50)
+        burst.set([{"name": f"kill burst {i}", "level": 2, "message": "x"} for i in range(200)])
+        writes = gw.get("/health").json()["x-medkit-faults"]["store_writes"]
+        burst.set([{"name": f"kill burst {i}", "level": 0, "message": "x"} for i in range(200)])
+        poll_until(lambda: gw.get("/health").json()["x-medkit-faults"]["store_writes"] > writes + 2, 20,
+                   message="the burst being written")
+        old_pid = gw.rosworker_pid()
+        os.kill(old_pid, signal.SIGKILL)
+        assert integrity(os.path.join(state_dir, "faults.db")) == "ok"
+
+        def restarted() -> bool:
+            health = gw.get("/health").json()
+            return health["x-medkit-subscription-executor"]["worker_alive"] and gw.rosworker_pid() != old_pid
+
+        poll_until(restarted, 60, message="the ROS worker restarted")
+        after = faults(gw)
+        assert {c for c in codes if after.get(c, {}).get("status") == "CONFIRMED"} == codes
+    finally:
+        gw.stop()
+    assert integrity(os.path.join(state_dir, "faults.db")) == "ok"
+
+
+def test_a_corrupt_store_is_moved_aside_and_the_gateway_starts_empty(state_dir):
+    path = os.path.join(state_dir, "faults.db")
+    with open(path, "wb") as fh:
+        fh.write(b"this is not a database" * 1000)
+    gw = Gateway(*FAST, "--state-dir", state_dir)
+    try:
+        section = gw.get("/health").json()["x-medkit-faults"]
+        assert section["store_size"] == 0 and section["store_enabled"] is True
+        assert section["moved_aside"].startswith(path + ".corrupt-")
+        assert os.path.exists(section["moved_aside"])
+        assert any("moved it aside" in line for line in gw.output)
+        assert gw.get("/faults").json()["items"] == []
+    finally:
+        gw.stop()
+    assert integrity(path) == "ok"
+
+
+def test_max_faults_drops_the_oldest_healed_fault_first_and_then_refuses(state_dir, diag):
+    gw = Gateway(*FAST, "--max-faults", "3", "--state-dir", state_dir)
+    try:
+        pub = diag("cap_driver", rate=5)
+        pub.set([{"name": "cap one", "level": 2}, {"name": "cap two", "level": 2}, {"name": "cap three", "level": 2}])
+        poll_until(lambda: len(faults(gw, "confirmed")) == 3, 20, message="three confirmed")
+        pub.set([{"name": "cap one", "level": 0}, {"name": "cap two", "level": 2}, {"name": "cap three", "level": 2}])
+        poll_until(lambda: faults(gw).get("CAP_ONE", {}).get("status") == "HEALED", 20, message="healed")
+        pub.set([{"name": "cap two", "level": 2}, {"name": "cap three", "level": 2}, {"name": "cap four", "level": 2}])
+        poll_until(lambda: "CAP_FOUR" in faults(gw), 20, message="the fourth fault")
+        assert set(faults(gw)) == {"CAP_TWO", "CAP_THREE", "CAP_FOUR"}   # the healed one went
+        pub.set([{"name": "cap two", "level": 2}, {"name": "cap three", "level": 2}, {"name": "cap four", "level": 2},
+                 {"name": "cap five", "level": 2}])
+        poll_until(lambda: gw.get("/health").json()["x-medkit-faults"]["refused"] > 0, 20, message="refused")
+        assert "CAP_FIVE" not in faults(gw) and len(faults(gw)) == 3
+    finally:
+        gw.stop()
+
+
+def test_clearing_is_off_by_default(state_dir, diag):
+    gw = Gateway(*FAST, "--state-dir", state_dir)
+    try:
+        diag("noclear_driver").set([{"name": "noclear", "level": 2}])
+        poll_until(lambda: "NOCLEAR" in faults(gw), 20, message="the fault")
+        for url in (f"{gw.api}/faults", f"{gw.api}/apps/noclear_driver/faults",
+                    f"{gw.api}/apps/noclear_driver/faults/NOCLEAR"):
+            r = requests.delete(url, timeout=10)
+            assert r.status_code == 403 and r.json()["error_code"] == "forbidden", url
+            assert "--allow-fault-clear" in r.json()["parameters"]["details"]
+        assert faults(gw)["NOCLEAR"]["status"] == "CONFIRMED"
+    finally:
+        gw.stop()

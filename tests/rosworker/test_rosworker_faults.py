@@ -1,0 +1,214 @@
+"""The fault manager's rules and the fault store, on the real message classes and a real SQLite file.
+
+The executor, pool and events socket are stand-ins here (what they do is covered through the real
+gateway in tests/app/test_app_faults.py); the lifecycle's timers are driven by ``tick`` and by the
+wall clock the manager reads.
+"""
+
+from __future__ import annotations
+
+import os
+import sqlite3
+import time
+
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+from ipc import events, protocol
+from rosworker import faults as mod
+from rosworker.faults import FaultManager, fault_code, parse_codes, parse_snapshot_topics
+from rosworker.faultstore import FaultStore
+
+
+class Stats:
+    faults: dict = {}
+
+
+class Pool:
+    def __init__(self):
+        self.subscribed: list[str] = []
+        self.samples: dict[str, dict] = {}
+
+    def subscribe(self, topic):
+        self.subscribed.append(topic)
+        return {"status": "pooled"}
+
+    def peek(self, topic, mode):
+        return self.samples.get(topic)
+
+
+def array(*statuses) -> DiagnosticArray:
+    msg = DiagnosticArray()
+    for name, level, *rest in statuses:
+        values = rest[0] if rest else {}
+        msg.status.append(DiagnosticStatus(level=bytes([level]), name=name, message=f"level {level}",
+                                           hardware_id="", values=[KeyValue(key=k, value=v)
+                                                                    for k, v in values.items()]))
+    return msg
+
+
+@pytest.fixture
+def make(tmp_path):
+    made = []
+
+    def build(**options) -> FaultManager:
+        sent: list[list[bytes]] = []
+        manager = FaultManager(None, None, options.pop("pool", Pool()), Stats(), FaultStore(str(tmp_path)),
+                               send=sent.append, **options)
+        manager.sent = sent
+        manager.load()
+        made.append(manager)
+        return manager
+
+    yield build
+    for manager in made:
+        manager.store.close(5)
+
+
+def status(manager, code):
+    return manager.faults[code]["status"]
+
+
+def test_codes_are_medkit_s():
+    assert fault_code("motor: Temperature") == "MOTOR_TEMPERATURE"
+    assert fault_code("/robot/sensor") == "ROBOT_SENSOR"
+    assert fault_code("motor temp") == "MOTOR_TEMP"
+    assert fault_code("::") == ""
+    assert len(fault_code("x" * 1000)) == 256
+    assert parse_codes("motor: Temperature=motor overheat;bad;=X") == {"motor: Temperature": "MOTOR_OVERHEAT"}
+    assert parse_snapshot_topics("MOTOR_*=/a, /b;;X=") == [("MOTOR_*", ["/a", "/b"])]
+
+
+def test_confirmed_by_count_healed_by_count_and_a_new_occurrence(make):
+    m = make(confirm_count=3, confirm_s=3600, heal_count=2)
+    m.on_array(array(("drive", 2)))
+    assert status(m, "DRIVE") == "PREFAILED" and m.faults["DRIVE"]["count"] == 1
+    m.on_array(array(("drive", 2)))
+    assert status(m, "DRIVE") == "PREFAILED"
+    m.on_array(array(("drive", 2)))
+    assert status(m, "DRIVE") == "CONFIRMED"
+    m.on_array(array(("drive", 0)))
+    assert status(m, "DRIVE") == "PREPASSED"
+    m.on_array(array(("drive", 1)))               # failing again before it healed: confirmed again
+    assert status(m, "DRIVE") == "CONFIRMED" and m.faults["DRIVE"]["count"] == 1
+    m.on_array(array(("drive", 0)))
+    m.on_array(array(("drive", 0)))
+    assert status(m, "DRIVE") == "HEALED" and m.faults["DRIVE"]["passed_ns"] > 0
+    m.on_array(array(("drive", 2)))
+    assert status(m, "DRIVE") == "PREFAILED" and m.faults["DRIVE"]["count"] == 2
+    kinds = [protocol.unpack(frames[1])["event_type"] for frames in m.sent]
+    # confirmed; then PREPASSED, CONFIRMED again, PREPASSED, HEALED: each an update of a confirmed fault
+    assert kinds == ["fault_confirmed"] + ["fault_updated"] * 4
+    assert all(frames[0] == events.FAULT_KEY for frames in m.sent)
+
+
+def test_confirmed_by_time_when_reports_are_rare(make):
+    m = make(confirm_count=100, confirm_s=0.2)
+    m.on_array(array(("slow", 2)))
+    m.tick(time.monotonic())
+    assert status(m, "SLOW") == "PREFAILED"
+    time.sleep(0.25)
+    m.tick(time.monotonic())
+    assert status(m, "SLOW") == "CONFIRMED"
+
+
+def test_a_stale_level_confirms_at_once_and_a_silent_status_turns_stale(make):
+    m = make(confirm_count=10, confirm_s=3600, stale_s=5)
+    m.on_array(array(("dead", 3), ("quiet", 0)))
+    assert status(m, "DEAD") == "CONFIRMED" and m.faults["DEAD"]["severity"] == 3
+    assert "QUIET" not in m.faults
+    m.tick(time.monotonic() + 4)
+    assert "QUIET" not in m.faults
+    m.tick(time.monotonic() + 6)
+    assert status(m, "QUIET") == "CONFIRMED" and m.faults["QUIET"]["description"].startswith("stale")
+    assert m.faults["QUIET"]["severity"] == 3
+    m.tick(time.monotonic() + 12)                  # reported once, not on every tick
+    assert m.faults["QUIET"]["count"] == 1
+
+
+def test_freeze_frames_are_bounded_in_count_and_bytes(make):
+    pool = Pool()
+    topics = [f"/t{i}" for i in range(20)]
+    for i, topic in enumerate(topics):
+        size = mod.SNAPSHOT_BYTES + 10 if i == 0 else 10
+        pool.samples[topic] = {"status": "data", "type": "std_msgs/msg/String",
+                               "data_json": b'{"data":"' + b"x" * size + b'"}'}
+    m = make(confirm_count=1, snapshot_topics="MOTOR_*=" + ",".join(topics), pool=pool)
+    m.on_array(array(("motor: a", 2, {"rpm": "0"})))
+    assert pool.subscribed[:3] == ["/t0", "/t1", "/t2"]     # pooled at PREFAILED
+    frames = m.faults["MOTOR_A"]["snapshots"]
+    assert len(frames) == mod.SNAPSHOTS_MAX
+    assert frames[0]["topic"] == "/diagnostics" and '"rpm":"0"' in frames[0]["data"]
+    assert frames[1]["topic"] == "/t0" and frames[1]["truncated"] > mod.SNAPSHOT_BYTES and frames[1]["data"] == "{}"
+    assert all(len(f["data"]) <= mod.SNAPSHOT_BYTES for f in frames)
+
+
+def test_max_faults_drops_the_oldest_done_fault_then_refuses(make):
+    m = make(confirm_count=1, heal_count=1, max_faults=2)
+    m.on_array(array(("a", 2), ("b", 2)))
+    m.on_array(array(("a", 0)))
+    m.on_array(array(("c", 2)))
+    assert set(m.faults) == {"B", "C"}
+    m.on_array(array(("d", 2)))
+    assert set(m.faults) == {"B", "C"} and m.refused == 1
+
+
+def test_the_store_keeps_faults_and_event_ids_across_managers(make, tmp_path):
+    m = make(confirm_count=1)
+    m.on_array(array(("kept", 2, {"v": "1"})))
+    assert m.clear(["KEPT", "NOPE"]) == ["KEPT"]
+    last = m.next_event_id
+    m.store.close(5)
+    again = make()
+    assert again.faults["KEPT"]["status"] == "CLEARED" and again.faults["KEPT"]["snapshots"]
+    assert again.next_event_id == last
+    assert [e["event_type"] for e in again.events_after(0)] == ["fault_confirmed", "fault_cleared"]
+    db = sqlite3.connect(tmp_path / "faults.db")
+    assert db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+    assert db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+    db.close()
+
+
+def test_a_corrupt_file_is_moved_aside(tmp_path, caplog):
+    path = tmp_path / "faults.db"
+    path.write_bytes(b"\x00garbage" * 4096)
+    store = FaultStore(str(tmp_path))
+    assert store.load() == ({}, [])
+    assert store.moved_aside.startswith(str(path) + ".corrupt-") and os.path.exists(store.moved_aside)
+    assert "moved it aside" in caplog.text
+    store.close(1)
+
+
+def test_an_unwritable_state_dir_keeps_faults_in_memory(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    store = FaultStore(str(blocker / "sub"))
+    assert store.load() == ({}, []) and store.enabled is False and store.last_write_error
+    store.put("X", {"code": "X"})   # nothing to write to, nothing raised
+    store.close(1)
+
+
+def test_a_failed_write_is_counted_and_retried(tmp_path, monkeypatch):
+    monkeypatch.setattr("rosworker.faultstore.RETRY_AFTER", 0.05)
+    store = FaultStore(str(tmp_path))
+    store.load()
+    store.start()
+    real = store._write
+    calls = {"n": 0}
+
+    def flaky(faults, events_):
+        calls["n"] += 1
+        if calls["n"] == 1:
+            raise sqlite3.OperationalError("disk I/O error")
+        real(faults, events_)
+
+    monkeypatch.setattr(store, "_write", flaky)
+    store.put("A", {"code": "A"})
+    deadline = time.monotonic() + 5
+    while store.writes < 1 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert store.write_errors == 1 and "disk I/O error" in store.last_write_error and store.writes == 1
+    store.close(5)
+    db = sqlite3.connect(tmp_path / "faults.db")
+    assert db.execute("SELECT code FROM faults").fetchall() == [("A",)]
+    db.close()
