@@ -209,6 +209,9 @@ SCHEMAS: dict[str, Any] = {
         X_medkit__streams={**_obj(list(counters.health_keys("streams")), **_counter_props("streams")),
                            "description": "cyclic subscriptions held, and the SSE streams of every HTTP worker "
                                           "(summed at each request)"},
+        # logs (issue 22): /rosout's ring buffers
+        X_medkit__logs={**_obj(list(counters.health_keys("logs")), **_counter_props("logs")),
+                        "description": "/rosout's ring buffers: lines held, taken, pushed out, dropped, lost"},
     ),
     "RootOverview": _obj(
         ["name", "version", "api_base", "endpoints", "capabilities"], name=STR,

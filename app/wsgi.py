@@ -57,6 +57,8 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
     app.register_blueprint(subscriptions.bp)
     app.register_blueprint(unimplemented.bp)  # medkit's routes not served here: 501
     app.register_blueprint(ui.bp)  # the dashboard at /ui/ (app/ui/)
+    from .routes import logs  # logs (issue 22)
+    app.register_blueprint(logs.bp)
     if cfg.debug_commands:  # test and bench routes; never in production
         from .routes import debug
 

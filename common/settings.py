@@ -166,6 +166,12 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("restart_window", float, 60.0, "seconds over which restarts are counted", 1, 86400),
     Setting("shutdown_grace", float, 5.0, "seconds in-flight HTTP requests get at shutdown", 0.5, 120),
     Setting("debug_commands", bool, False, "enable test-only IPC commands (never in production)"),
+    # --- logs: /rosout's ring buffers (issue 22; README "Logs") ---
+    Setting("log_buffer_size", int, 200, "/rosout lines kept per node (the oldest go first)", 1, 100000),
+    Setting("log_max_bytes", int, 64 * 2**20, "bytes of /rosout lines kept in all (the oldest go first)",
+            2**16, 2**34),
+    Setting("log_max_nodes", int, 2000, "nodes whose /rosout lines are kept (a new node's past it are "
+            "dropped and counted)", 1, 100000),
 )
 
 BY_NAME = {s.name: s for s in SETTINGS}

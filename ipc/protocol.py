@@ -35,6 +35,7 @@ COMMANDS = (
     "ping", "stats", "graph", "sample", "subscribe", "evict", "publish", "type_info", "pool",
     "sub_create", "sub_list", "sub_get", "sub_update", "sub_delete",
     "debug_sleep",
+    "logs", "log_config_get", "log_config_set",  # logs (issue 22): rosworker/logs.py
 )
 # Commands answered from counters by the control thread, without queueing behind ROS work;
 # clients send them to the control socket.

@@ -23,7 +23,7 @@ SOVD_VERSION = openapi.SOVD_VERSION
 
 # medkit's capabilities that this gateway does not serve and whose routes are not in
 # unimplemented.ROUTES (later issues implement them).
-NOT_SERVED = ("operations", "async_actions", "configurations", "faults", "logs", "triggers")
+NOT_SERVED = ("operations", "async_actions", "configurations", "faults", "triggers")
 
 
 
@@ -42,6 +42,7 @@ def root():
             "authentication": bool(cfg.api_token),
             "docs": True,
             "cyclic_subscriptions": True,
+            "logs": True,  # logs (issue 22): app/routes/logs.py
             # medkit's features not served here.  Those of unimplemented.ROUTES answer 501;
             # those of NOT_SERVED answer 404 until the issues that implement them.
             **{name: False for name in NOT_SERVED},
@@ -120,6 +121,7 @@ def health():
         "x-medkit-data-provider": provider,
         "x-medkit-subscription-executor": executor,
         "x-medkit-streams": streams,
+        "x-medkit-logs": _logs_section(stats),  # logs (issue 22)
     })
 
 
@@ -140,3 +142,11 @@ def _sections(stats: dict[str, Any] | None) -> tuple[dict[str, Any], dict[str, A
             provider["evictions"] = dict(details["evictions"])
     streams.update(metrics.stream_totals())
     return provider, executor, streams
+
+
+# logs (issue 22): /health's x-medkit-logs, the declared counters as _sections shows the others.
+def _logs_section(stats: dict[str, Any] | None) -> dict[str, Any]:
+    section = counters.health_defaults("logs", config())
+    if stats and isinstance(stats.get("logs"), dict):
+        section.update(stats["logs"])
+    return section

@@ -40,9 +40,10 @@ def test_root_says_what_is_not_served(client):
     body = client.get("/api/v1/").get_json()
     caps = body["capabilities"]
     for name in ("bulk_data", "locking", "scripts", "lifecycle", "updates", "operations", "configurations",
-                 "faults", "logs", "triggers"):
+                 "faults", "triggers"):
         assert caps[name] is False, name
     assert caps["cyclic_subscriptions"] is True and caps["docs"] is True
+    assert caps["logs"] is True  # logs (issue 22)
     assert "GET /api/v1/updates" in body["endpoints"]
     assert "POST /api/v1/apps/{app_id}/locks" in body["endpoints"]
 
