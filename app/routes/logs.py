@@ -86,9 +86,10 @@ def _query() -> tuple[str, str]:
         raise ApiError(400, "invalid-parameter",
                        "Invalid severity value: must be one of debug, info, warning, error, fatal",
                        {"parameter": "severity", "value": severity[:100]})
-    if len(context) > MAX_CONTEXT:
+    size = len(context.encode("utf-8", "surrogateescape"))  # medkit counts bytes
+    if size > MAX_CONTEXT:
         raise ApiError(400, "invalid-parameter", f"context filter exceeds maximum length of {MAX_CONTEXT}",
-                       {"parameter": "context", "length": len(context)})
+                       {"parameter": "context", "length": size})
     return severity, context
 
 
