@@ -155,7 +155,8 @@ def test_entity_docs_fill_in_the_entity(client):
         "/components/test-robot/docs", "/components/test-robot/data/docs",
         # medkit's routes not served here (501), in the order of unimplemented.ROUTES
         *dict.fromkeys(path.replace("{component_id}", "test-robot")
-                       for _, path, collection in unimplemented.paths() if collection == "components")]
+                       for _, path, collection in unimplemented.paths() if collection == "components"),
+        "/components/test-robot/logs", "/components/test-robot/logs/configuration"]  # logs (issue 22)
     assert "/components/test-robot/locks/{lock_id}" in doc["paths"]
     get = doc["paths"]["/components/test-robot/hosts"]["get"]
     assert get["operationId"] == "listComponentHosts" and "parameters" not in get
