@@ -4,7 +4,8 @@
 // (the host component hosts every app, so its logs are every node's) and appends the lines it
 // has not shown yet (ids only grow), newest last; the view follows the tail unless the reader
 // has scrolled up.  Changing the severity starts over.  At most MAX_ROWS lines stay on screen.
-// A failed read is shown in the panel's status line and retried at the next round.
+// A failed read is shown in the panel's status line and retried at the next round; while the
+// health panel says the ROS worker is away, no read is made.
 
 import { describe, get } from "./api.js";
 import { fill, h } from "./dom.js";
@@ -27,6 +28,11 @@ export class LogsPanel {
     this.timer = null;
     this.generation = 0; // one polling loop at a time: a restart starts a new generation
     this.severity.addEventListener("change", () => this.restart());
+    // Paused while the ROS worker is away (health.js says so): its answer would only be a 503.
+    this.paused = false;
+    window.addEventListener("sovd-health", (event) => {
+      this.paused = event.detail.state === "unavailable" || event.detail.state === "unreachable";
+    });
   }
 
   start() {
@@ -43,7 +49,7 @@ export class LogsPanel {
 
   async _poll() {
     const generation = this.generation;
-    if (!document.hidden) {
+    if (!document.hidden && !this.paused) {
       try {
         await this._read(generation);
       } catch (error) {
