@@ -221,6 +221,9 @@ class Bench:
                  "memory": self.case_memory, "image": self.case_image, "cold": self.case_cold,
                  "idle": self.case_idle, "streams": self.case_streams, "stream_image": self.case_stream_image,
                  "sub_costs": self.case_sub_costs}
+        # logs (issue 22): /rosout at 1 kHz vs its DDS floor (bench/logs.py)
+        from . import logs as rosout_logs
+        cases["rosout"] = lambda: rosout_logs.case_rosout(self)
         only = set(self.args.only.split(",")) if self.args.only else set(cases)
         if "old" in only:
             only.add("warm")  # the old design is compared with the warm sample
