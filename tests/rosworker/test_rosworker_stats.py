@@ -12,7 +12,7 @@ import time
 
 from rosworker.stats import Stats
 
-SECTIONS = {"data_provider", "executor", "streams", "details"}
+SECTIONS = {"data_provider", "executor", "streams", "details", "logs"}  # logs: issue 22
 NOT_REPORTED = {"watchdog_threshold_ms", "current_task_started"}  # a setting, and a clock reading
 
 
