@@ -209,6 +209,9 @@ SCHEMAS: dict[str, Any] = {
         X_medkit__streams={**_obj(list(counters.health_keys("streams")), **_counter_props("streams")),
                            "description": "cyclic subscriptions held, and the SSE streams of every HTTP worker "
                                           "(summed at each request)"},
+        # logs (issue 22): /rosout's ring buffers
+        X_medkit__logs={**_obj(list(counters.health_keys("logs")), **_counter_props("logs")),
+                        "description": "/rosout's ring buffers: lines held, taken, pushed out, dropped, lost"},
     ),
     "RootOverview": _obj(
         ["name", "version", "api_base", "endpoints", "capabilities"], name=STR,
@@ -695,6 +698,58 @@ def _configuration_paths(collection: str) -> dict[str, Any]:
     }
 
 
+# ---- logs (issue 22): {entity}/logs and logs/configuration (app/routes/logs.py) ----
+SEVERITY = {"enum": ["debug", "info", "warning", "error", "fatal"]}
+SCHEMAS.update({
+    "LogEntry": _obj(
+        ["id", "timestamp", "severity", "message", "context"],
+        id={"type": "string", "pattern": "^log_[0-9]+$"},
+        timestamp={"type": "string", "description": "ISO 8601 UTC with nanoseconds"}, severity=SEVERITY,
+        message=STR, context=_obj(["node"], node={**STR, "description": "the logger name (dots)"},
+                                  function=STR, file=STR, line=INT)),
+    "LogEntryList": _obj(
+        ["items"], items={"type": "array", "items": ref("LogEntry"), "description": "oldest first"},
+        X_medkit={**_obj(["entity_id", "aggregation_level", "aggregated"], entity_id=STR,
+                         aggregation_level={"enum": ["component", "function"]}, aggregated={"const": True},
+                         app_count=INT, host_count=INT, aggregation_sources=STR_LIST),
+                  "description": "components and functions only"}),
+    "LogConfiguration": _obj(["severity_filter", "max_entries"], severity_filter=SEVERITY,
+                             max_entries={**INT, "minimum": 1, "maximum": 10000}),
+    "LogConfigurationUpdate": _obj([], severity_filter=SEVERITY,
+                                   max_entries={**INT, "minimum": 1, "maximum": 10000}),
+})
+
+
+def _logs_paths(collection: str) -> dict[str, Any]:
+    """medkit's logs of an app (its node's /rosout lines), a component or a function (their apps')."""
+    title = _title(collection)
+    base = f"/{collection}/{{{PARAM_NAMES[collection]}}}/logs"
+    params = [_id_param(collection)]
+    query = [{"name": "severity", "in": "query", "required": False, "schema": {"enum": ["", *SEVERITY["enum"]]},
+              "description": "minimum severity (the stricter of this and the entity's severity_filter)"},
+             {"name": "context", "in": "query", "required": False, "schema": {**STR, "maxLength": 256},
+              "description": "substring of the logger name (at most 256 bytes)"}]
+    bad = ("400", "Invalid entity ID, or a bad `severity`, `context`, `severity_filter` or `max_entries` "
+                  "(`invalid-parameter`)")
+    token = {"security": [{"bearerAuth": []}, {}]}
+    put = _op(f"update{title}LogConfiguration", "Logs", "Change what the entity's logs show (204)", None, bad,
+              ("401", "An API token is configured and the request has none (`unauthorized`)"),
+              ("403", "An API token is configured and the request's is wrong (`forbidden`)"), "404",
+              *BODY_ERRORS, "503", "504", **token, parameters=params,
+              requestBody={"required": True, "content": {"application/json": {
+                  "schema": ref("LogConfigurationUpdate")}}})
+    put["responses"] = {"204": {"description": "Updated"}, **put["responses"]}
+    return {
+        base: {"get": _op(f"list{title}Logs", "Logs", f"A {collection[:-1]}'s /rosout lines, oldest first",
+                          _ok("LogEntryList"), bad, "404", "503", "504", parameters=params + query)},
+        base + "/configuration": {
+            "get": _op(f"get{title}LogConfiguration", "Logs", "What the entity's logs show",
+                       _ok("LogConfiguration"), "400", "404", "503", "504", parameters=params),
+            "put": put,
+        },
+    }
+
+
 @lru_cache(maxsize=1)
 def _document() -> dict[str, Any]:
     paths: dict[str, Any] = {
@@ -714,6 +769,8 @@ def _document() -> dict[str, Any]:
     paths.update(_docs_paths())
     paths.update({k: v for c in ("apps", "components", "functions") for k, v in _configuration_paths(c).items()})
     paths.update(_not_implemented_paths())
+    for collection in ("apps", "components", "functions"):  # logs (issue 22)
+        paths.update(_logs_paths(collection))
     paths["/metrics"] = {"get": METRICS_OP}
     for collection in ("apps", "components", "functions"):  # operations: services and actions
         paths.update(_operation_paths(collection))
@@ -729,6 +786,7 @@ def _document() -> dict[str, Any]:
                  {"name": "Subscriptions", "description": "Cyclic subscriptions: live data over SSE"},
                  {"name": "Operations", "description": "ROS 2 services and actions (operations: services "
                                                        "and actions)"},
+                 {"name": "Logs", "description": "The robot's /rosout, per entity (issue 22)"},
                  *({"name": f.tag, "description": f"Not implemented: 501 ({f.message})"}
                    for f in unimplemented.FEATURES.values())],
         "paths": paths,

@@ -65,6 +65,8 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
     # configurations: the nodes' ROS 2 parameters (app/routes/configurations.py)
     from .routes import configurations
     app.register_blueprint(configurations.bp)
+    from .routes import logs  # logs (issue 22)
+    app.register_blueprint(logs.bp)
     if cfg.debug_commands:  # test and bench routes; never in production
         from .routes import debug
 

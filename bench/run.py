@@ -226,6 +226,9 @@ class Bench:
                  "operations": lambda: operations.case_trigger(self)}  # operations: a Trigger call
         # configurations: GET and PUT of a parameter vs a bare rclpy parameter client (bench/params.py)
         cases["params"] = lambda: __import__("bench.params", fromlist=["case"]).case(self)
+        # logs (issue 22): /rosout at 1 kHz vs its DDS floor (bench/logs.py)
+        from . import logs as rosout_logs
+        cases["rosout"] = lambda: rosout_logs.case_rosout(self)
         only = set(self.args.only.split(",")) if self.args.only else set(cases)
         if "old" in only:
             only.add("warm")  # the old design is compared with the warm sample

@@ -199,6 +199,12 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("fault_snapshot_topics", str, "", "topics captured at confirmation: 'CODE_PATTERN=/t1,/t2;...'"),
     Setting("allow_fault_clear", bool, False, "allow DELETE .../faults (clearing faults)"),
     Setting("max_fault_streams", int, 16, "open GET /faults/stream streams per HTTP worker", 1, 1000),
+    # --- logs: /rosout's ring buffers (issue 22; README "Logs") ---
+    Setting("log_buffer_size", int, 200, "/rosout lines kept per node (the oldest go first)", 1, 100000),
+    Setting("log_max_bytes", int, 64 * 2**20, "bytes of /rosout lines kept in all (the oldest go first)",
+            2**16, 2**34),
+    Setting("log_max_nodes", int, 2000, "nodes whose /rosout lines are kept (a new node's past it are "
+            "dropped and counted)", 1, 100000),
 )
 
 BY_NAME = {s.name: s for s in SETTINGS}

@@ -132,7 +132,45 @@ def build() -> list[Node]:
     from demo.battery import add_diagnostics
 
     add_diagnostics(battery)
+    _log_lines(engine, brakes, odometry, battery)  # logs (issue 22): /rosout at several levels
     return [engine, brakes, odometry, lights, diag, camera, battery]
+
+
+# logs (issue 22): what the demo's nodes write to /rosout (GET /apps/{id}/logs, the Logs panel).
+def _log_lines(engine: Node, brakes: Node, odometry: Node, battery: Node) -> None:
+    """Lines at every level but fatal: debug, info, warning when a value leaves its band, an error now and then."""
+    from rclpy.logging import LoggingSeverity
+
+    brakes.get_logger().set_level(LoggingSeverity.DEBUG)
+    start = time.monotonic()
+
+    def engine_line():
+        temperature = 90.0 + 5.0 * math.sin(time.monotonic() / 10.0)
+        if temperature > 94.0:
+            engine.get_logger().warning(f"engine temperature high: {temperature:.1f} °C")
+        else:
+            engine.get_logger().info(f"engine temperature {temperature:.1f} °C")
+
+    def brakes_line():
+        brakes.get_logger().debug("brake pressure sampled")
+
+    def odometry_line():
+        if int(time.monotonic() - start) % 30 < 10:  # the first line (at 5 s) is one
+            odometry.get_logger().error("wheel slip detected on the rear left wheel")
+        else:
+            odometry.get_logger().info("odometry ok")
+
+    def battery_line():
+        percentage = 0.8 + 0.1 * math.sin(time.monotonic() / 30.0)
+        if percentage < 0.72:
+            battery.get_logger().warning(f"battery low: {percentage:.0%}")
+        else:
+            battery.get_logger().info(f"battery at {percentage:.0%}")
+
+    engine.create_timer(2.0, engine_line)
+    brakes.create_timer(1.0, brakes_line)
+    odometry.create_timer(5.0, odometry_line)
+    battery.create_timer(3.0, battery_line)
 
 
 def test_pattern(frame: int) -> bytes:

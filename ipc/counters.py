@@ -49,6 +49,7 @@ SECTIONS: dict[str, str | None] = {
     "streams": "x-medkit-streams",
     "details": None,
     "operations": "x-medkit-operations",   # operations: services and actions
+    "logs": "x-medkit-logs",  # logs: /rosout's ring buffers (issue 22)
 }
 
 
@@ -177,6 +178,26 @@ COUNTERS: tuple[Counter, ...] = (
       "sovd_ros_parameter_timeouts"),
     C("details", "parameter_events", COUNTER, "Messages read from /parameter_events",
       "sovd_ros_parameter_events"),
+    # ---- x-medkit-logs: /rosout's ring buffers (issue 22; rosworker/logs.py) ----
+    C("logs", "logs_buffered", GAUGE, "Log lines held in the ring buffers now", "sovd_ros_logs_buffered"),
+    C("logs", "logs_bytes", GAUGE, "Bytes of the log lines held now", "sovd_ros_logs_bytes"),
+    C("logs", "logs_nodes", GAUGE, "Nodes with a ring buffer now", "sovd_ros_logs_nodes"),
+    C("logs", "logs_received", COUNTER, "Log lines taken from /rosout", "sovd_ros_logs_received"),
+    C("logs", "logs_evicted", COUNTER, "Buffered log lines pushed out by newer ones (per node or byte cap)",
+      "sovd_ros_logs_evicted"),
+    C("logs", "logs_dropped", COUNTER, "Log lines not buffered: their node came past log_max_nodes",
+      "sovd_ros_logs_dropped"),
+    C("logs", "logs_lost", COUNTER, "Log lines lost before the gateway took them (publisher sequence gaps)",
+      "sovd_ros_logs_lost"),
+    C("logs", "logs_saturated_rounds", COUNTER, "Rounds that took as many lines as one round may (a storm)",
+      "sovd_ros_logs_saturated_rounds"),
+    C("logs", "logs_undecodable", COUNTER, "/rosout messages that did not decode", "sovd_ros_logs_undecodable"),
+    C("logs", "logs_buffer_size", GAUGE, "Lines kept per node (log_buffer_size)", "sovd_ros_logs_buffer_size",
+      setting="log_buffer_size"),
+    C("logs", "logs_max_bytes", GAUGE, "Byte cap of the log buffers (log_max_bytes)", "sovd_ros_logs_max_bytes",
+      setting="log_max_bytes"),
+    C("logs", "logs_max_nodes", GAUGE, "Most nodes buffered (log_max_nodes)", "sovd_ros_logs_max_nodes",
+      setting="log_max_nodes"),
 )
 del C
 

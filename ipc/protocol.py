@@ -41,6 +41,7 @@ COMMANDS = (
     "param_list", "param_get", "param_set", "param_reset", "param_reset_all",
     # faults (rosworker/faults.py)
     "fault_list", "fault_get", "fault_clear", "fault_events",
+    "logs", "log_config_get", "log_config_set",  # logs (issue 22): rosworker/logs.py
 )
 # Commands answered from counters by the control thread, without queueing behind ROS work;
 # clients send them to the control socket.

@@ -239,6 +239,12 @@ class Worker:
         commands.handlers.update(fault_handlers(faults))
         # What the executor's loop runs: the queued commands, and a look at each topic that
         # callers wait on (its first message) on every round.
+        # logs (issue 22): /rosout's ring buffers and their commands (rosworker/logs.py)
+        from .logs import LogBook
+        logbook = LogBook(node, executor, stats, buffer_size=cfg.log_buffer_size, max_bytes=cfg.log_max_bytes,
+                          max_nodes=cfg.log_max_nodes)
+        executor.guarded("subscribing to /rosout", logbook.start)
+        commands.handlers.update(logbook.handlers)
         executor.serve(commands.handlers)
         executor.watch_cold(pool.cold_entries, pool.on_ready)
 
@@ -296,6 +302,7 @@ class Worker:
             executor.guarded("the operations' shutdown", operations.shutdown)  # operations
             executor.guarded("the publishers' shutdown", publishers.shutdown)
             executor.guarded("the fault store's shutdown", faults.shutdown, STATE_FLUSH_WAIT)  # faults
+            executor.guarded("the logs' shutdown", logbook.shutdown)  # logs (issue 22)
             executor.linger()
         finally:
             streams.close()

@@ -23,7 +23,7 @@ SOVD_VERSION = openapi.SOVD_VERSION
 
 # medkit's capabilities that this gateway does not serve and whose routes are not in
 # unimplemented.ROUTES (later issues implement them).
-NOT_SERVED = ("logs", "triggers")
+NOT_SERVED = ("triggers",)
 
 
 
@@ -43,6 +43,7 @@ def root():
             "docs": True,
             "cyclic_subscriptions": True,
             "faults": True,  # faults (app/routes/faults.py)
+            "logs": True,  # logs (issue 22): app/routes/logs.py
             # medkit's features not served here.  Those of unimplemented.ROUTES answer 501;
             # those of NOT_SERVED answer 404 until the issues that implement them.
             **{name: False for name in NOT_SERVED},
@@ -130,6 +131,7 @@ def health():
         # configurations: the parameter clients of the ROS worker (rosworker/parameters.py)
         "x-medkit-configurations": _configurations(stats),
         "x-medkit-faults": faults_health(stats),  # faults (rosworker/faults.py)
+        "x-medkit-logs": _logs_section(stats),  # logs (issue 22)
     })
 
 
@@ -179,4 +181,12 @@ def faults_health(stats: dict[str, Any] | None) -> dict[str, Any]:
                                "last_write_error": ""}
     if isinstance(part, dict):
         section.update({k: part[k] for k in FAULT_HEALTH_KEYS if k in part})
+    return section
+
+
+# logs (issue 22): /health's x-medkit-logs, the declared counters as _sections shows the others.
+def _logs_section(stats: dict[str, Any] | None) -> dict[str, Any]:
+    section = counters.health_defaults("logs", config())
+    if stats and isinstance(stats.get("logs"), dict):
+        section.update(stats["logs"])
     return section

@@ -209,6 +209,21 @@ def test_every_route_answers_per_the_document(doc):
                 r = client.open(path, method=method, **kw)
                 check(doc, method, path, r)
                 seen.setdefault(operation(doc, method, path)[0], set()).add(r.status_code)
+        # logs (issue 22): app/routes/logs.py
+        for collection in ("apps", "components", "functions"):
+            base = f"/api/v1/{collection}/{ENTITY[collection]}/logs"
+            for method, path, kw in [
+                ("GET", base, {}), ("GET", base + "?severity=loud", {}), ("GET", f"/api/v1/{collection}/nope/logs", {}),
+                ("GET", base + "/configuration", {}), ("GET", f"/api/v1/{collection}/b.d/logs/configuration", {}),
+                ("PUT", base + "/configuration", {"json": {"max_entries": 5}, "headers": auth}),
+                ("PUT", base + "/configuration", {"json": {"max_entries": 0}, "headers": auth}),
+                ("PUT", base + "/configuration", {"json": {"max_entries": 5}}),
+                ("PUT", base + "/configuration", {"json": {}, "headers": {"Authorization": "Bearer wrong"}}),
+                ("PUT", base + "/configuration", {"data": b"{}", "content_type": "text/plain", "headers": auth}),
+            ]:
+                r = client.open(path, method=method, **kw)
+                check(doc, method, path, r)
+                seen.setdefault(operation(doc, method, path)[0], set()).add(r.status_code)
         # medkit's routes not served here: 501 whatever the ids (app/routes/unimplemented.py).
         for route, path, _ in unimplemented.paths():
             concrete = "/api/v1" + re.sub(r"\{[^}]+\}", "x1", path)
@@ -295,8 +310,8 @@ def test_every_operation_with_a_json_body_documents_the_body_errors(doc):
     with_body = [(method, path, op) for path, ops in doc["paths"].items() for method, op in ops.items()
                  if "requestBody" in op]
     # PUT data of 4 collections; POST and PUT cyclic-subscriptions of 3; POST and PUT executions of 3;
-    # PUT configurations of 3
-    assert len(with_body) == 19
+    # PUT configurations of 3; PUT logs/configuration of 3
+    assert len(with_body) == 22
     for method, path, op in with_body:
         assert list(op["requestBody"]["content"]) == ["application/json"], (method, path)
         assert {"408", "413", "415"} <= set(op["responses"]), (method, path)

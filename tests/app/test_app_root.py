@@ -39,11 +39,11 @@ def test_root_says_what_is_not_served(client):
     """The capabilities say what answers 501 (app/routes/unimplemented.py) and what is not there yet."""
     body = client.get("/api/v1/").get_json()
     caps = body["capabilities"]
-    for name in ("bulk_data", "locking", "scripts", "lifecycle", "updates", "logs", "triggers"):
+    for name in ("bulk_data", "locking", "scripts", "lifecycle", "updates", "triggers"):
         assert caps[name] is False, name
-    assert caps["cyclic_subscriptions"] is True and caps["docs"] is True
-    assert caps["operations"] is True and caps["async_actions"] is True
-    assert caps["configurations"] is True  # configurations: app/routes/configurations.py
+    for name in ("cyclic_subscriptions", "docs", "operations", "async_actions", "configurations", "faults",
+                 "logs"):
+        assert caps[name] is True, name
     assert "GET /api/v1/updates" in body["endpoints"]
     assert "POST /api/v1/apps/{app_id}/locks" in body["endpoints"]
 
@@ -158,6 +158,7 @@ def test_entity_docs_fill_in_the_entity(client):
         # medkit's routes not served here (501), in the order of unimplemented.ROUTES
         *dict.fromkeys(path.replace("{component_id}", "test-robot")
                        for _, path, collection in unimplemented.paths() if collection == "components"),
+        "/components/test-robot/logs", "/components/test-robot/logs/configuration",  # logs (issue 22)
         # operations: services and actions
         "/components/test-robot/operations", "/components/test-robot/operations/{operation_id}",
         "/components/test-robot/operations/{operation_id}/executions",

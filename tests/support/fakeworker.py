@@ -235,6 +235,12 @@ class FakeWorker:
         reply = getattr(self, "replies", {}).get(cmd)
         if reply is not None:
             return reply(args) if callable(reply) else reply
+        # logs (issue 22): one line of each node asked, and a configuration echoed (rosworker/logs.py)
+        if cmd == "logs":
+            return {"rows": [[n, 1700000000, 5, 30, fqn.lstrip("/").replace("/", "."), "a line", "f.py", "fn", 3]
+                             for n, fqn in enumerate(args.get("nodes") or [], 1)]}
+        if cmd in ("log_config_get", "log_config_set"):
+            return {"severity_filter": args.get("severity_filter", "debug"), "max_entries": args.get("max_entries", 100)}
         return IpcError("unknown-command", f"unknown command {cmd!r}")
 
 

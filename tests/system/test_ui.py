@@ -303,7 +303,9 @@ def test_without_publishing_there_is_no_form(robot, browser, page):
 
 
 def test_a_ros_worker_restart_is_shown_and_the_view_recovers_by_itself(gw, page):
-    tab, _ = page
+    tab, watch = page
+    # logs (issue 22): the Logs panel's read may meet the outage before the health poll does (then it pauses).
+    watch.allow("GET", 503)
     value = open_temperature(gw, tab)
     badge = tab.locator("#worker-badge")
     expect(badge).to_have_attribute("data-state", "healthy")
@@ -455,3 +457,18 @@ def test_the_dashboard_works_under_a_path_prefix_behind_nginx(gw, page, tmp_path
         tab.goto("about:blank")
         nginx.stop()
         shutil.rmtree(nginx.prefix, ignore_errors=True)
+
+
+# logs (issue 22): the Logs panel's live tail of the demo robot's /rosout, and its severity filter
+def test_the_logs_panel_tails_the_robots_lines_without_reloading_and_filters_by_severity(gw, page):
+    tab, _ = page
+    tab.goto(gw.url + "/ui/")
+    lines = tab.locator("#logs-body .log-line")
+    expect(lines.first).to_be_visible()
+    seen = lines.count()
+    poll_until(lambda: lines.count() > seen, 20, message="new log lines on screen without a reload")
+    assert tab.locator("#logs-body .log-line[data-severity='debug']").count() > 0  # the brakes' debug lines
+    tab.select_option("#logs-severity", "error")
+    expect(tab.locator("#logs-body .log-line[data-severity='error']").first).to_contain_text("wheel slip")
+    for severity in ("debug", "info", "warning"):
+        expect(tab.locator(f"#logs-body .log-line[data-severity='{severity}']")).to_have_count(0)

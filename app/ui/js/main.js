@@ -91,3 +91,8 @@ health.start();
 await loadOverview();
 tree.load();
 showRoute();
+
+// logs (issue 22): the Logs panel, a live tail of every node's /rosout lines (js/logs.js)
+import { LogsPanel } from "./logs.js";
+
+new LogsPanel($("logs-body"), $("logs-severity"), $("logs-status")).start();
