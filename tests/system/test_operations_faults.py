@@ -142,3 +142,12 @@ def test_hostile_bodies_get_json_errors_and_never_kill_the_worker(gw, body):
         if r.status_code == 400:
             assert r.json()["error_code"] in ("invalid-request", "invalid-parameter", "vendor-error")
     assert gw.get("/health").json()["x-medkit-subscription-executor"]["worker_alive"]
+
+
+def test_no_server_of_the_asked_type_is_503_with_retry_after(gw):
+    """A type override no server of the path serves: the client never matches, 503 (not a hang)."""
+    r = post(gw, "/apps/c/operations/twice/reset/executions", {"parameters": {}, "type": "std_srvs/srv/Empty"})
+    assert r.status_code == 503, r.text
+    assert r.json()["vendor_code"] == "x-medkit-ros2-service-unavailable" and r.headers["Retry-After"]
+    r = post(gw, "/functions/dup/operations/a:reset/executions", {})
+    assert r.status_code == 200, r.text   # the path's own type still works
