@@ -103,7 +103,7 @@ def test_cadence_and_payloads_are_those_of_the_grid(phased):
     stamps = [m["ts"] for m, _ in got]
     # one frame per interval: no two ticks of the same topic within half an interval (the phase change
     # included), and no tick skipped: the span is the count's worth of intervals
-    gaps = [(b - a) / 1e6 for a, b in zip(stamps, stamps[1:])]
+    gaps = [(b - a) / 1e6 for a, b in zip(stamps, stamps[1:], strict=False)]
     assert min(gaps) >= FAST_MS / 2 - 5, gaps
     assert len(got) - 1 <= round((stamps[-1] - stamps[0]) / 1e6 / FAST_MS) + 1, gaps
     # the latest value every tick, changed or not (no new message since the first)
@@ -113,7 +113,7 @@ def test_cadence_and_payloads_are_those_of_the_grid(phased):
     assert {d for _, d in frames(s, "fast", TOPIC, 3)} == {b'{"data":2}'}
     normal = frames(s, "normal", TOPIC, 3)
     assert {d for _, d in normal} == {b'{"data":2}'}
-    normal_gaps = [(b["ts"] - a["ts"]) / 1e6 for (a, _), (b, _) in zip(normal, normal[1:])]
+    normal_gaps = [(b["ts"] - a["ts"]) / 1e6 for (a, _), (b, _) in zip(normal, normal[1:], strict=False)]
     assert min(normal_gaps) >= events.INTERVALS["normal"] * 500 - 5, normal_gaps
 
 
