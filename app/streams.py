@@ -15,13 +15,17 @@ no thread per stream.
   events tell whether the ROS worker is there.
 - Each stream is a bounded buffer (``STREAM_BUFFER`` frames and
   ``STREAM_BUFFER_BYTES``, the oldest dropped first: latest-value semantics)
-  and a connection whose kernel send buffer is ``STREAM_SNDBUF``, drained by
-  its response generator,
-  which also sends a ``:`` keep-alive comment after ``KEEPALIVE`` seconds of
-  silence and ends the stream at its expiry.  A client that stops reading
-  only ever holds a few frames; it never slows the others; and one that
-  takes more than ``stream_send_timeout`` seconds to take a frame is
-  disconnected (its connection is not held for ever).
+  and a connection whose kernel send buffer is ``STREAM_SNDBUF``.  Under
+  gunicorn the reader writes a pushed frame on the connection at once, with
+  one non-blocking send per stream per frame (issue 23: the frame's bytes,
+  already framed as an HTTP chunk, are made once per key and entity and
+  shared; no greenlet switch per frame); what the kernel does not take is
+  written by the stream's response generator, which also sends a ``:``
+  keep-alive comment after ``KEEPALIVE`` seconds of silence and ends the
+  stream at its expiry.  A client that stops reading only ever holds a few
+  frames; it never slows the others; and one whose write lasts more than
+  ``stream_send_timeout`` seconds is disconnected by the ticker (a deadline
+  stamp per write in progress, not a timer per frame).
 - The *ticker* greenlet stands in while the ROS worker is down: every stream
   gets an ``error`` frame per interval (the error a GET would answer), so the
   stream stays open and visibly degraded until data frames come back.  It
@@ -29,7 +33,9 @@ no thread per stream.
   shuts down.
 - Open streams, frames sent and frames dropped are Prometheus metrics
   (``app/metrics.py``): ``/metrics`` and the ``x-medkit-streams`` section of
-  ``/health`` sum them over every HTTP worker.
+  ``/health`` sum them over every HTTP worker.  Frames are counted in the
+  hub's ``counters`` as they go; the ticker adds them to the Prometheus
+  counters once per round (``TICK``), not once per frame.
 
 Before fork / after fork: nothing here runs at import time; the hub, its
 socket and its greenlets are made by :func:`get` in the worker process.
@@ -49,6 +55,7 @@ from typing import Any
 
 import gevent
 import gevent.event
+import gevent.socket
 import orjson
 import zmq.green as zmq
 from flask import Flask, current_app
@@ -107,10 +114,28 @@ class SendStalled(OSError):
         super().__init__(errno.EPIPE, f"the client took no frame for {seconds:g} s (stream_send_timeout)")
 
 
-class Stream:
-    """One open ``.../events`` response."""
+def chunked(data: bytes) -> bytes:
+    """``data`` as one HTTP/1.1 chunk (what the server would frame a yielded piece as)."""
+    return b"%X\r\n" % len(data) + data + b"\r\n"
 
-    def __init__(self, hub: StreamHub, sub: dict[str, Any]):
+
+KEEPALIVE_FRAME = b": keep-alive\n\n"
+KEEPALIVE_CHUNK = chunked(KEEPALIVE_FRAME)
+
+
+class Stream:
+    """One open ``.../events`` response.
+
+    ``sock``: the client's connection (gunicorn's gevent socket), written directly: the response
+    head goes through the server (the body's first, empty piece), then each frame is sent on the
+    connection by the hub's reader as it is pushed (one non-blocking send; a frame shared by every
+    stream of its key and entity, already framed as a chunk when the response is chunked).  What
+    the kernel does not take at once is written by the stream's own greenlet; a write that lasts
+    longer than the send timeout is cut by the hub's ticker (``sending_since``), no timer per frame.
+    Without ``sock`` (a test client), frames are yielded to the server.
+    """
+
+    def __init__(self, hub: StreamHub, sub: dict[str, Any], sock: Any = None, framed: bool = False):
         self.hub = hub
         self.id: str = sub["id"]
         self.collection: str = sub["collection"]
@@ -125,22 +150,32 @@ class Stream:
         self.ended = False
         self.last_frame = time.monotonic()
         self.next_check = 0.0
+        self.sock = sock           # written directly (None: frames are yielded to the server)
+        self.framed = framed       # direct and chunked: ``frames`` hold HTTP chunks
+        self.partial = b""         # direct: the rest of a write the kernel did not take at once
+        self.sending_since = 0.0   # direct: monotonic start of the write in progress (0: none)
+        self.cut = False           # the ticker cut this stream's connection (a stalled reader)
 
     @property
     def period(self) -> float:
         return events.INTERVALS[self.interval]
 
-    def push(self, chunk: bytes) -> None:
+    def push(self, chunk: bytes, framed: bytes | None = None, now: float | None = None) -> None:
+        """Queue one frame (``framed``: the same frame as an HTTP chunk, if the caller has it)."""
         if self.ended:
             return
+        if self.framed:
+            chunk = framed if framed is not None else chunked(chunk)
         self.frames.append(chunk)
         self.buffered += len(chunk)
         while len(self.frames) > STREAM_BUFFER or (self.buffered > STREAM_BUFFER_BYTES and len(self.frames) > 1):
             self.buffered -= len(self.frames.popleft())
             self.hub.counters["frames_dropped"] += 1
-            self.hub.prom.frames_dropped.inc()
-        self.last_frame = time.monotonic()
-        self.wake.set()
+        self.last_frame = time.monotonic() if now is None else now
+        if self.sock is not None and not self.sending_since and not self.partial:
+            self._send_now()
+        else:
+            self.wake.set()
 
     def end(self, last: bytes | None = None) -> None:
         if last is not None:
@@ -148,33 +183,71 @@ class Stream:
         self.ended = True
         self.wake.set()
 
+    def _take(self) -> bytes:
+        """Everything queued, as one write (counted as sent here: metrics are flushed per tick)."""
+        count = len(self.frames)
+        data = self.frames.popleft() if count == 1 else b"".join(self.frames)
+        self.frames.clear()
+        self.buffered = 0
+        self.hub.counters["frames_sent"] += count
+        return data
+
+    def _send_now(self) -> None:
+        """One non-blocking send of what is queued (the reader's greenlet); the rest is the stream's."""
+        data = self._take()
+        try:
+            sent = self.sock.send(data, 0, 0.0)
+        except BlockingIOError:
+            sent = 0
+        except OSError:  # the client went away: the body ends, the server closes the connection
+            self.ended = True
+            self.wake.set()
+            return
+        if sent < len(data):
+            self.partial = data[sent:]
+            self.wake.set()
+
+    def _write(self, data: bytes) -> None:
+        """A blocking write on this stream's greenlet; the ticker cuts it after the send timeout."""
+        hub = self.hub
+        self.sending_since = time.monotonic()
+        hub.sending.add(self)
+        try:
+            self.sock.sendall(data)
+        except OSError:
+            if self.cut:
+                raise SendStalled(hub.send_timeout) from None
+            raise
+        finally:
+            self.sending_since = 0.0
+            hub.sending.discard(self)
+
     def body(self) -> Iterator[bytes]:
         """The response body: it opens the stream in the hub when it is first iterated, and its
         ``finally`` gives it back (client gone, expiry, end).
 
-        The server writes what is yielded on this greenlet; a write that takes longer
-        than the send timeout raises :class:`SendStalled` there (gunicorn closes the
-        connection as it does for a client that went away).
+        Yielded pieces are written by the server on this greenlet (no ``sock``); with ``sock`` the
+        body yields once, empty (the server sends the response head), and writes the rest itself.
+        A write that takes longer than the send timeout ends in :class:`SendStalled` (the server
+        closes the connection as it does for a client that went away).
         """
         hub = self.hub
-        stalled = gevent.Timeout(hub.send_timeout, SendStalled(hub.send_timeout))
+        direct = self.sock is not None
         try:
+            if direct:
+                yield b""  # the server writes the response head now; the frames follow on the socket
             # Registered here, on the first iteration, and nowhere else: a response whose body
             # is never iterated (a HEAD: the server sends no body) registers nothing, so no
             # stream can be open without this ``finally`` to give it back.
             hub.register(self)
             quiet_since = time.monotonic()
             while True:
-                if self.frames:
-                    chunk = self.frames.popleft()
-                    self.buffered -= len(chunk)
-                    hub.counters["frames_sent"] += 1
-                    hub.prom.frames_sent.inc()
-                    stalled.start()
-                    try:
-                        yield chunk
-                    finally:
-                        stalled.cancel()
+                if self.partial or self.frames:
+                    if direct:
+                        data, self.partial = self.partial or self._take(), b""
+                        self._write(data)
+                    else:
+                        yield self._take()
                     quiet_since = time.monotonic()
                     continue
                 if self.ended:
@@ -183,15 +256,14 @@ class Stream:
                 if now >= self.expires:
                     return
                 if now - quiet_since >= KEEPALIVE:
-                    stalled.start()
-                    try:
-                        yield b": keep-alive\n\n"
-                    finally:
-                        stalled.cancel()
+                    if direct:
+                        self._write(KEEPALIVE_CHUNK if self.framed else KEEPALIVE_FRAME)
+                    else:
+                        yield KEEPALIVE_FRAME
                     quiet_since = now
                     continue
                 self.wake.clear()
-                if not self.frames and not self.ended:
+                if not self.frames and not self.partial and not self.ended:
                     self.wake.wait(min(self.expires - now, KEEPALIVE - (now - quiet_since)))
         finally:
             hub.close(self)
@@ -209,6 +281,8 @@ class StreamHub:
         self.by_id: dict[str, set[Stream]] = {}
         self.counters = {"open_streams": 0, "frames_sent": 0, "frames_dropped": 0}  # this hub's own
         self.prom = metrics.http()             # the same, as /metrics and /health sum them (app/metrics.py)
+        self._flushed = {"frames_sent": 0, "frames_dropped": 0}  # counted into ``prom`` so far (per tick)
+        self.sending: set[Stream] = set()      # direct streams in a blocking write (the ticker's deadline)
         self.connected = False
         self.heartbeat = 0.0
         self._ctx: zmq.Context | None = None
@@ -344,15 +418,23 @@ class StreamHub:
         watchers = self.by_key.get(key)
         if not watchers:
             return
-        self.heartbeat = max(self.heartbeat, time.monotonic())  # frames prove the worker is there
+        now = time.monotonic()
+        self.heartbeat = max(self.heartbeat, now)  # frames prove the worker is there
         stamp = meta.get("ts") if isinstance(meta.get("ts"), int) else time.time_ns()
-        chunks: dict[str, bytes] = {}
+        # Each frame's bytes are built once per entity (and framed as an HTTP chunk once), then shared.
+        chunks: dict[str, list[bytes | None]] = {}
         for stream in list(watchers):
-            chunk = chunks.get(stream.entity_id)
-            if chunk is None:
-                chunk = chunks[stream.entity_id] = self._chunk(stream, stamp, meta, data)
-                self._last_payload[(key, stream.entity_id)] = (time.monotonic(), chunk)
-            stream.push(chunk)
+            made = chunks.get(stream.entity_id)
+            if made is None:
+                raw = self._chunk(stream, stamp, meta, data)
+                made = chunks[stream.entity_id] = [raw, None]
+                self._last_payload[(key, stream.entity_id)] = (now, raw)
+            if stream.framed:
+                if made[1] is None:
+                    made[1] = chunked(made[0])
+                stream.push(made[0], made[1], now)
+            else:
+                stream.push(made[0], None, now)
 
     def _chunk(self, stream: Stream, stamp: int, meta: dict[str, Any], data: bytes) -> bytes:
         if "error" in meta:
@@ -390,6 +472,8 @@ class StreamHub:
             try:
                 gevent.sleep(TICK)
                 now = time.monotonic()
+                self._flush_metrics()
+                self._cut_stalled(now)
                 if self._stopping():
                     self.end_all(lambda s: error_frame(s, SHUTDOWN))
                     return
@@ -405,6 +489,25 @@ class StreamHub:
                 raise
             except Exception:
                 log.exception("stream ticker failed a round")
+
+    def _flush_metrics(self) -> None:
+        """Frames sent and dropped since the last tick, into the Prometheus counters at once."""
+        for name, counter in (("frames_sent", self.prom.frames_sent), ("frames_dropped", self.prom.frames_dropped)):
+            delta = self.counters[name] - self._flushed[name]
+            if delta:
+                counter.inc(delta)
+                self._flushed[name] += delta
+
+    def _cut_stalled(self, now: float) -> None:
+        """A direct stream whose write has lasted the send timeout: its reader is not reading."""
+        for stream in list(self.sending):
+            if stream.sending_since and now - stream.sending_since >= self.send_timeout:
+                stream.cut = True
+                self.sending.discard(stream)
+                try:
+                    stream.sock.shutdown(socket.SHUT_RDWR)   # the blocked write fails at once
+                except OSError:
+                    pass
 
     def _check_silent(self, now: float) -> None:
         """Streams that get no frames while the ROS worker is there: is their subscription gone,
@@ -522,14 +625,19 @@ def body(sub: dict[str, Any], environ: dict[str, Any]) -> Iterator[bytes]:
     being made): a HEAD, whose body is never iterated, opens no stream.
     """
     # The app and the connection are looked up now, in the request.
-    return _serve(current_app.extensions[EXTENSION], sub, environ.get("gunicorn.socket"))
+    return _serve(current_app.extensions[EXTENSION], sub, environ.get("gunicorn.socket"),
+                  environ.get("SERVER_PROTOCOL", "HTTP/1.1"))
 
 
-def _serve(per_process: _PerProcess, sub: dict[str, Any], sock: Any) -> Iterator[bytes]:
+def _serve(per_process: _PerProcess, sub: dict[str, Any], sock: Any, protocol_: str = "HTTP/1.1") -> Iterator[bytes]:
     if sock is not None:  # gunicorn's connection (not there under a test client)
         # The connection keeps this buffer after the stream if it is used again (keep-alive).
         try:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, STREAM_SNDBUF)
         except OSError as exc:
             log.warning("could not bound a stream's send buffer: %s", exc)
-    yield from Stream(per_process.get(), sub).body()
+    direct = isinstance(sock, gevent.socket.socket)  # gunicorn's gevent worker: written directly
+    # gunicorn frames the body in chunks for HTTP/1.1 (no Content-Length, not a HEAD: a HEAD never
+    # iterates this body), as-is for HTTP/1.0; a direct stream frames its writes the same way.
+    framed = direct and protocol_ not in ("HTTP/1.0", "HTTP/0.9")
+    yield from Stream(per_process.get(), sub, sock if direct else None, framed).body()

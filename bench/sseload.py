@@ -14,9 +14,10 @@ one selector, and prints one JSON line when done::
      "per_stream_min": N, "cpu_s": ..., "stamp_latency_ms": {...}}
 
 Lateness of a frame: when its last byte arrived, minus the slot of the fixed
-``period`` grid its envelope timestamp falls on (the ROS worker ticks on that
-grid, so a late tick counts as lateness, and a skipped one as a frame not
-delivered).  ``delivered``/``expected`` count frames whose slot lies in the
+``period`` grid its envelope timestamp falls on (a late tick counts as
+lateness, and a skipped one as a frame not delivered).  The grid is each
+stream's own, from its first frame: the ROS worker phases each topic's ticks
+to its messages' arrivals (issue 23), so two topics' grids differ.  ``delivered``/``expected`` count frames whose slot lies in the
 measurement window ``[measure_from, open_for]`` seconds after the start.
 With ``stamp_field`` (e.g. ``"header.stamp"``), the latency from that stamp
 in the payload (a publisher's clock) to arrival is measured too, once per new
@@ -44,7 +45,8 @@ def _ms(text: bytes) -> float:
 
 
 class Reader:
-    __slots__ = ("sock", "buf", "head_done", "chunked", "pending", "events", "slots", "stamps", "last_stamp")
+    __slots__ = ("sock", "buf", "head_done", "chunked", "pending", "events", "slots", "stamps", "last_stamp",
+                 "grid")
 
     def __init__(self, sock: socket.socket):
         self.sock = sock
@@ -56,6 +58,7 @@ class Reader:
         self.slots: set[int] = set()
         self.stamps: list[float] = []
         self.last_stamp = None
+        self.grid: float | None = None   # ms: the envelope stamp of this stream's first frame
 
 
 def _percentile(values: list[float], q: float) -> float:
@@ -80,7 +83,6 @@ def main() -> None:
     started = time.time()
     window_start = started + measure_from
     window_end = started + open_for
-    grid: float | None = None
     gap = 1.0 / spec.get("connect_rate", 400)
 
     def connect(path: str) -> None:
@@ -97,7 +99,7 @@ def main() -> None:
         selector.register(sock, selectors.EVENT_READ, reader)
 
     def on_event(reader: Reader, block: bytes, arrived_ms: float) -> None:
-        nonlocal grid, errors
+        nonlocal errors
         match = STAMP.match(block)
         if not match:
             return
@@ -106,10 +108,10 @@ def main() -> None:
             errors += 1
             return
         stamp = _ms(match.group(1))
-        if grid is None:
-            grid = stamp
-        slot = round((stamp - grid) / period_ms)
-        scheduled = grid + slot * period_ms
+        if reader.grid is None:
+            reader.grid = stamp
+        slot = round((stamp - reader.grid) / period_ms)
+        scheduled = reader.grid + slot * period_ms
         if window_start * 1000 <= scheduled <= window_end * 1000:
             reader.slots.add(slot)
             lateness.append(arrived_ms - scheduled)

@@ -43,6 +43,7 @@ class Stats:
         # queued commands: name -> [count, total µs on the ROS thread] (the names are a fixed set)
         self.commands: dict[str, list[int]] = {}
         self.ticks: dict[str, int] = {}  # stream timer rounds by interval
+        self.phase_changes = 0  # tick phase per topic: times a topic's ticks were phased to its arrivals
         self.current_task_started = 0.0  # monotonic; 0 while idle
         self.faults: dict = {}  # faults: /health's x-medkit-faults, replaced whole (rosworker/faults.py)
 

@@ -35,6 +35,20 @@ Caps: ``max_subscriptions`` in all, and ``max_subscriptions_per_client`` per
 client address (the HTTP side sends it with ``sub_create``), so that one
 client cannot take the whole registry.
 
+Tick phase per topic: a topic's ticks are phased to its messages' arrivals
+(rmw's received timestamp, known at each take), so that a message is framed
+``PHASE_MARGIN`` after it arrives, not up to an interval later.  Until a
+topic's first message, its watches tick on the interval's grid (one timer for
+all of them, as a topic nobody publishes keeps).  Its first message sets the
+phase; afterwards ``PHASE_MISSES`` new messages in a row taken later than
+``PHASE_MARGIN + PHASE_SLACK`` after they arrived set it again (at most once
+per ``PHASE_HOLD``, so a client's grid stays put while a topic's rate drifts).
+Watches of the same phase (to the millisecond) share one timer.  The cadence
+is unchanged: one frame per interval with the latest value, whether or not it
+changed; a topic whose messages stop keeps ticking at its last phase; a watch
+moved to a new phase skips a tick that would come within half an interval of
+its last one.
+
 Control events (``updated``, ``deleted``, ``expired``) and a heartbeat go on
 the same socket, so HTTP workers end or retime their streams at once.
 
@@ -78,6 +92,10 @@ log = logging.getLogger("sovd.rosworker.streams")
 
 HEARTBEAT_EVERY = 1.0
 SAVE_WAIT = 1.0     # seconds a changed registry waits for the writer before it is answered anyway
+PHASE_MARGIN = 0.002  # seconds after a message's arrival that its topic's phased tick comes
+PHASE_SLACK = 0.005   # a new message taken later than MARGIN + this after it arrived is out of phase
+PHASE_MISSES = 3      # ... so many of them in a row phase the topic again
+PHASE_HOLD = 5.0      # seconds between two phase changes of a topic at most
 
 
 def wall_minus_monotonic_ns() -> int:
@@ -142,13 +160,29 @@ def _saved_at_once(then: Callable[[], None] | None = None) -> None:
 
 
 class _Watch:
-    """A ``(topic, bytes mode)`` watched at one interval: when it was first ticked."""
+    """A ``(topic, bytes mode)`` watched at one interval: when it was first ticked, its tick group
+    (``slot``: None on the interval's grid, else its phase in ms) and when it last ticked."""
 
-    __slots__ = ("since", "count")
+    __slots__ = ("since", "count", "slot", "last")
 
     def __init__(self):
         self.since = time.monotonic()
         self.count = 0
+        self.slot: int | None = None
+        self.last = 0.0
+
+
+class _Phase:
+    """A watched topic's phase: ``anchor`` (a monotonic time its ticks fall on, None until its first
+    message), the received stamp of the last message seen, misses in a row, and the last change."""
+
+    __slots__ = ("anchor", "last_ns", "misses", "changed")
+
+    def __init__(self):
+        self.anchor: float | None = None
+        self.last_ns = 0
+        self.misses = 0
+        self.changed = 0.0
 
 
 class StreamRegistry:
@@ -173,6 +207,10 @@ class StreamRegistry:
         # topic -> ((generation, epoch or -1), the answer a read would give): see the module's doc
         self._unpooled: dict[str, tuple[tuple[int, int], dict[str, Any]]] = {}
         self.watches: dict[str, dict[tuple[str, str], _Watch]] = {i: {} for i in events.INTERVALS}
+        # (interval, slot) -> the watches ticked together; slot None: the interval's grid (always timed)
+        self._groups: dict[tuple[str, int | None], dict[tuple[str, str], _Watch]] = {
+            (i, None): {} for i in events.INTERVALS}
+        self._phases: dict[str, _Phase] = {}   # watched topic -> its phase
         self._expiry: dict[str, Timer] = {}
         self._pub: zmq.Socket | None = None
         # save(): after every change of the registry, hands the records to the restart state's
@@ -185,7 +223,7 @@ class StreamRegistry:
     def bind(self) -> None:
         self._pub = bind_publisher(self.zctx, self.runtime_dir)
         for interval, seconds in events.INTERVALS.items():
-            self._schedule(interval, time.monotonic() + seconds)
+            self._schedule(interval, None, time.monotonic() + seconds)
         self.executor.call_later(0, self._heartbeat)
 
     def restore(self, saved: list[dict[str, Any]]) -> None:
@@ -343,7 +381,12 @@ class StreamRegistry:
         self._remove(sub, "expired")
 
     def _watch(self, sub: Subscription) -> None:
-        watch = self.watches[sub.interval].setdefault((sub.topic, sub.bytes), _Watch())
+        watches = self.watches[sub.interval]
+        watch = watches.get((sub.topic, sub.bytes))
+        if watch is None:
+            watch = watches[(sub.topic, sub.bytes)] = _Watch()
+            phase = self._phases.setdefault(sub.topic, _Phase())
+            self._join(sub.interval, (sub.topic, sub.bytes), watch, phase.anchor)
         watch.count += 1
 
     def _unwatch(self, sub: Subscription) -> None:
@@ -353,30 +396,87 @@ class StreamRegistry:
             watch.count -= 1
             if watch.count <= 0:
                 del watches[(sub.topic, sub.bytes)]
+                self._leave(sub.interval, (sub.topic, sub.bytes), watch)
                 if not any((sub.topic, m) in w for w in self.watches.values() for m in protocol.BYTES_MODES):
                     self._unpooled.pop(sub.topic, None)
+                    self._phases.pop(sub.topic, None)
+
+    # ---- phases ---------------------------------------------------------------------------
+    def _join(self, interval: str, key: tuple[str, str], watch: _Watch, anchor: float | None) -> None:
+        """Put ``watch`` in the tick group of ``anchor`` (None: the interval's grid)."""
+        period = events.INTERVALS[interval]
+        slot = None if anchor is None else int((anchor % period) * 1000)
+        watch.slot = slot
+        group = self._groups.get((interval, slot))
+        if group is None:  # a new phase: its timer starts at the next tick time of the anchor
+            group = self._groups[(interval, slot)] = {}
+            now = time.monotonic()
+            self._schedule(interval, slot, anchor + -(-(now - anchor) // period) * period)
+        group[key] = watch
+
+    def _leave(self, interval: str, key: tuple[str, str], watch: _Watch) -> None:
+        group = self._groups.get((interval, watch.slot))
+        if group is not None:
+            group.pop(key, None)  # an empty phase group's timer ends at its next tick
+
+    def _follow(self, topic: str, received_ns: int, scheduled: float, offset_s: float) -> None:
+        """A tick of ``topic`` took the message received at ``received_ns`` (wall clock): phase the
+        topic's ticks to it if it is its first one, or if its messages keep coming out of phase."""
+        phase = self._phases.get(topic)
+        if phase is None or received_ns == phase.last_ns:
+            return
+        phase.last_ns = received_ns
+        arrival = received_ns / 1e9 - offset_s
+        if phase.anchor is not None:
+            if scheduled - arrival <= PHASE_MARGIN + PHASE_SLACK:
+                phase.misses = 0
+                return
+            phase.misses += 1
+            if phase.misses < PHASE_MISSES or scheduled - phase.changed < PHASE_HOLD:
+                return
+        phase.anchor = arrival + PHASE_MARGIN
+        phase.misses = 0
+        phase.changed = scheduled
+        self.stats.phase_changes += 1
+        for interval, watches in self.watches.items():
+            for mode in protocol.BYTES_MODES:
+                watch = watches.get((topic, mode))
+                if watch is not None:
+                    self._leave(interval, (topic, mode), watch)
+                    self._join(interval, (topic, mode), watch, phase.anchor)
 
     # ---- ticks ----------------------------------------------------------------------------
-    def _schedule(self, interval: str, when: float) -> None:
-        self.executor.call_later(max(0.0, when - time.monotonic()), lambda: self._tick(interval, when))
+    def _schedule(self, interval: str, slot: int | None, when: float) -> None:
+        self.executor.call_later(max(0.0, when - time.monotonic()), lambda: self._tick(interval, slot, when))
 
-    def _tick(self, interval: str, scheduled: float) -> None:
+    def _tick(self, interval: str, slot: int | None, scheduled: float) -> None:
         period = events.INTERVALS[interval]
+        group = self._groups.get((interval, slot))
+        if slot is not None and not group:  # every watch of this phase left it: its timer ends
+            self._groups.pop((interval, slot), None)
+            return
         now = time.monotonic()
         following = scheduled + period
         if following <= now:  # late by more than a period: skip to the next slot ahead
             following = now + period - ((now - scheduled) % period)
-        self._schedule(interval, following)
-        watches = self.watches[interval]
-        if not watches or self._pub is None:
+        self._schedule(interval, slot, following)
+        if not group or self._pub is None:
             return
         stamp = time.time_ns()
-        for (topic, mode), watch in list(watches.items()):
+        offset_s = stamp / 1e9 - now  # the wall clock minus the monotonic one: arrivals to ticks
+        framed = False
+        for (topic, mode), watch in list(group.items()):
+            if scheduled - watch.last < period / 2:  # just moved to this phase: one frame per interval
+                continue
+            watch.last = scheduled
+            framed = True
             self.executor.guarded(f"the {interval} tick of {topic}", self._frame, interval, topic, mode,
-                                  watch, stamp)
-        self.stats.ticks[interval] = self.stats.ticks.get(interval, 0) + 1
+                                  watch, stamp, scheduled, offset_s)
+        if framed:
+            self.stats.ticks[interval] = self.stats.ticks.get(interval, 0) + 1
 
-    def _frame(self, interval: str, topic: str, mode: str, watch: _Watch, stamp: int) -> None:
+    def _frame(self, interval: str, topic: str, mode: str, watch: _Watch, stamp: int, scheduled: float = 0.0,
+               offset_s: float = 0.0) -> None:
         try:
             result = self._peek(topic, mode)
         except IpcError as exc:
@@ -391,6 +491,8 @@ class StreamRegistry:
         if result["status"] == "metadata_only":
             meta["timestamp"] = stamp  # a kept answer says "now", as a fresh one would
         self._publish(events.data_key(interval, mode, topic), meta, result["data_json"])
+        if result["status"] == "data" and isinstance(result.get("timestamp"), int):
+            self._follow(topic, result["timestamp"], scheduled, offset_s)
 
     def _peek(self, topic: str, mode: str) -> dict[str, Any] | None:
         """``pool.peek``, except that an unpooled topic's answer is kept until the graph changes."""

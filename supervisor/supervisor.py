@@ -60,6 +60,7 @@ from ipc.client import RosWorkerClient
 from ipc.errors import IpcError
 
 from .children import Child, bind_problem, gunicorn_argv, http_answers, rosworker_argv
+from .limits import raise_nofile
 from .sdnotify import Notifier, child_env
 
 log = logging.getLogger("sovd.supervisor")
@@ -132,6 +133,7 @@ class Supervisor:
     # ---- entry point ----------------------------------------------------------------------
     def run(self) -> int:
         self.state = STARTING
+        raise_nofile()  # issue 23: one descriptor per SSE stream; the children inherit the limit
         self._install_signals()
         code = EXIT_FAILURE
         try:
