@@ -46,6 +46,9 @@ IPC_ANSWERS: dict[str, tuple[int, str, str | None, int | None]] = {
     "unavailable": (503, "vendor-error", "x-medkit-ros-worker-unavailable", 2),
     "subscriptions-full": (503, "service-unavailable", None, 5),
     "deadline-exceeded": (504, "not-responding", None, None),
+    # triggers (app/routes/triggers.py)
+    "no-such-trigger": (404, "resource-not-found", None, None),
+    "triggers-full": (503, "service-unavailable", None, 5),
 }
 
 # HTTP status -> SOVD error_code for errors that Werkzeug raises.

@@ -57,6 +57,12 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
     app.register_blueprint(subscriptions.bp)
     app.register_blueprint(unimplemented.bp)  # medkit's routes not served here: 501
     app.register_blueprint(ui.bp)  # the dashboard at /ui/ (app/ui/)
+    # Triggers (app/routes/triggers.py, their streams app/triggerstreams.py).
+    from . import triggerstreams
+    from .routes import triggers
+
+    triggerstreams.init_app(app)
+    app.register_blueprint(triggers.bp)
     if cfg.debug_commands:  # test and bench routes; never in production
         from .routes import debug
 

@@ -166,6 +166,11 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("restart_window", float, 60.0, "seconds over which restarts are counted", 1, 86400),
     Setting("shutdown_grace", float, 5.0, "seconds in-flight HTTP requests get at shutdown", 0.5, 120),
     Setting("debug_commands", bool, False, "enable test-only IPC commands (never in production)"),
+    # --- triggers (README "Triggers") ---
+    Setting("max_triggers", int, 1000, "triggers held at once", 1, 100000),
+    Setting("max_triggers_per_client", int, 100, "triggers one client address may hold at once", 1, 100000),
+    Setting("trigger_store", str, "", "file that keeps the triggers across restarts (default: "
+            "triggers.json in runtime_dir; give a path on disk to keep persistent ones across reboots)"),
 )
 
 BY_NAME = {s.name: s for s in SETTINGS}

@@ -150,6 +150,15 @@ COUNTERS: tuple[Counter, ...] = (
       label="command"),
     C("details", "ticks", BY, "Rounds of the stream timers, by interval", "sovd_ros_stream_ticks",
       label="interval"),
+    # ---- triggers (rosworker/triggers.py) ----
+    C("streams", "active_triggers", GAUGE, "Triggers active now", "sovd_ros_triggers"),
+    C("streams", "max_triggers", GAUGE, "Most triggers held at once (max_triggers)", "sovd_ros_triggers_cap",
+      setting="max_triggers"),
+    C("streams", "triggers_created", COUNTER, "Triggers created", "sovd_ros_triggers_created"),
+    C("streams", "trigger_messages", COUNTER, "Messages of watched topics taken and evaluated (one per "
+      "message, however many triggers watch the topic)", "sovd_ros_trigger_messages"),
+    C("streams", "trigger_events", COUNTER, "Trigger events sent to the HTTP workers (firings)",
+      "sovd_ros_trigger_events"),
 )
 del C
 

@@ -36,6 +36,9 @@ CODES: frozenset[str] = frozenset({
     "unavailable",
     "subscriptions-full",
     "deadline-exceeded",
+    # triggers (rosworker/triggers.py)
+    "no-such-trigger",
+    "triggers-full",
 })
 
 

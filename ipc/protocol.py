@@ -36,6 +36,8 @@ COMMANDS = (
     "sub_create", "sub_list", "sub_get", "sub_update", "sub_delete",
     "debug_sleep",
 )
+# Triggers (rosworker/triggers.py).
+COMMANDS += ("trig_create", "trig_list", "trig_get", "trig_update", "trig_delete", "trig_open")
 # Commands answered from counters by the control thread, without queueing behind ROS work;
 # clients send them to the control socket.
 IMMEDIATE = ("ping", "stats")

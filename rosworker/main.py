@@ -216,6 +216,13 @@ class Worker:
                             debug=cfg.debug_commands)
         # What the executor's loop runs: the queued commands, and a look at each topic that
         # callers wait on (its first message) on every round.
+        # Triggers (rosworker/triggers.py): their commands, their store, restored before discovery.
+        from .triggers import TriggerRegistry, events_sender, store_path
+        triggers = TriggerRegistry(node, executor, stats, endpoints, events_sender(streams),
+                                   max_triggers=cfg.max_triggers, max_per_client=cfg.max_triggers_per_client,
+                                   store_path=store_path(cfg.trigger_store, cfg.runtime_dir))
+        triggers.restore(restart=bool(self.restart))
+        commands.handlers.update(triggers.handlers)
         executor.serve(commands.handlers)
         executor.watch_cold(pool.cold_entries, pool.on_ready)
 
@@ -237,6 +244,7 @@ class Worker:
             self._rewarm(executor, pool, rewarm, time.monotonic() + REWARM_FOR)
         streams.restore(subscriptions)
         state.start()
+        triggers.start()  # triggers: the store's writer
 
         try:
             executor.bind()
@@ -260,6 +268,7 @@ class Worker:
             # Write what is pending and answer the commands that waited for it; from here on
             # a change (a queued command drained below) is written on this thread.
             state.close(STATE_FLUSH_WAIT)
+            triggers.close()  # triggers: their store written, their subscriptions destroyed
             executor.run_posted()
             executor.guarded("the pool's shutdown", pool.shutdown)
             executor.guarded("the publishers' shutdown", publishers.shutdown)

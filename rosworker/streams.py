@@ -425,6 +425,11 @@ class StreamRegistry:
         self.executor.call_later(HEARTBEAT_EVERY, self._heartbeat)
         self._send([events.HEARTBEAT_KEY, protocol.pack({"pid": os.getpid(), "t": time.time_ns()})])
 
+    # Triggers (rosworker/triggers.py) send their events on this channel too.
+    def send(self, frames: list[bytes]) -> None:
+        """Send ``frames`` on the events channel (never blocks; dropped when it is closed)."""
+        self._send(frames)
+
     def _send(self, frames: list[bytes]) -> None:
         if self._pub is None:
             return

@@ -23,7 +23,7 @@ SOVD_VERSION = openapi.SOVD_VERSION
 
 # medkit's capabilities that this gateway does not serve and whose routes are not in
 # unimplemented.ROUTES (later issues implement them).
-NOT_SERVED = ("operations", "async_actions", "configurations", "faults", "logs", "triggers")
+NOT_SERVED = ("operations", "async_actions", "configurations", "faults", "logs")
 
 
 
@@ -42,6 +42,7 @@ def root():
             "authentication": bool(cfg.api_token),
             "docs": True,
             "cyclic_subscriptions": True,
+            "triggers": True,  # triggers (app/routes/triggers.py)
             # medkit's features not served here.  Those of unimplemented.ROUTES answer 501;
             # those of NOT_SERVED answer 404 until the issues that implement them.
             **{name: False for name in NOT_SERVED},
