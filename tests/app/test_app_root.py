@@ -40,9 +40,10 @@ def test_root_says_what_is_not_served(client):
     body = client.get("/api/v1/").get_json()
     caps = body["capabilities"]
     for name in ("bulk_data", "locking", "scripts", "lifecycle", "updates", "operations", "configurations",
-                 "faults", "logs", "triggers"):
+                 "faults", "logs"):
         assert caps[name] is False, name
     assert caps["cyclic_subscriptions"] is True and caps["docs"] is True
+    assert caps["triggers"] is True  # served: app/routes/triggers.py
     assert "GET /api/v1/updates" in body["endpoints"]
     assert "POST /api/v1/apps/{app_id}/locks" in body["endpoints"]
 
@@ -152,6 +153,8 @@ def test_entity_docs_fill_in_the_entity(client):
         "/components/test-robot/cyclic-subscriptions/{subscription_id}",
         "/components/test-robot/cyclic-subscriptions/{subscription_id}/events",
         "/components/test-robot/docs", "/components/test-robot/data/docs",
+        "/components/test-robot/triggers", "/components/test-robot/triggers/{trigger_id}",
+        "/components/test-robot/triggers/{trigger_id}/events",
         # medkit's routes not served here (501), in the order of unimplemented.ROUTES
         *dict.fromkeys(path.replace("{component_id}", "test-robot")
                        for _, path, collection in unimplemented.paths() if collection == "components")]
