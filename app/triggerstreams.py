@@ -8,8 +8,8 @@ process receives a trigger's event once however many of its streams watch
 it, and nothing of the triggers it does not stream.
 
 A trigger's events come only when it fires.  Each stream holds at most
-``STREAM_BUFFER`` events and ``STREAM_BUFFER_BYTES`` (``app/streams.py``'s
-bounds): past them the oldest go first (the newest event wins) and each one
+``EVENT_BUFFER`` events and ``STREAM_BUFFER_BYTES`` (``app/streams.py``'s
+bound): past them the oldest go first (the newest event wins) and each one
 dropped is counted in ``frames_dropped`` (``/health``, ``/metrics``); a client
 that takes no event for ``stream_send_timeout`` seconds is disconnected.  A
 ``:`` keep-alive comment goes after ``KEEPALIVE`` (15) seconds of silence.
@@ -49,7 +49,6 @@ from . import metrics, rosclient
 from .streams import (
     HEARTBEAT_LOST,
     KEEPALIVE,
-    STREAM_BUFFER,
     STREAM_BUFFER_BYTES,
     STREAM_SNDBUF,
     SendStalled,
@@ -59,6 +58,9 @@ from .streams import (
 log = logging.getLogger("sovd.http.triggers")
 
 TICK = 0.25           # seconds between the ticker's rounds
+# Events a stream holds for a slow client (and STREAM_BUFFER_BYTES): a trigger's events are discrete
+# (a burst of changes is several events, each worth sending), so more than a cyclic stream's frames.
+EVENT_BUFFER = 64
 VERIFY_EVERY = 10.0   # seconds between two look-ups of a silent stream's trigger
 LOOKUP_TIMEOUT = 1.0
 EXTENSION = "sovd_trigger_streams"
@@ -107,7 +109,7 @@ class TriggerStream:
             return
         self.frames.append(chunk)
         self.buffered += len(chunk)
-        while len(self.frames) > STREAM_BUFFER or (self.buffered > STREAM_BUFFER_BYTES and len(self.frames) > 1):
+        while len(self.frames) > EVENT_BUFFER or (self.buffered > STREAM_BUFFER_BYTES and len(self.frames) > 1):
             self.buffered -= len(self.frames.popleft())
             self.hub.dropped += 1
             self.hub.prom.frames_dropped.inc()
