@@ -15,8 +15,10 @@ Data triggers, per topic, not per trigger.  A watched topic gets its own
 subscription (``KEEP_LAST`` ``TRIGGER_DEPTH``, QoS matched to its
 publishers), apart from the pool's depth-1 one, so that every message is
 seen, not only the newest.  Each round of the loop takes what arrived, at
-most ``TAKES_PER_ROUND`` messages per topic (the rest wait for the next
-round, 2 ms later: one busy topic cannot hold the thread), converts each
+most ``TAKES_PER_ROUND`` messages per topic and ``ROUND_BUDGET`` seconds in
+all (the rest wait in the subscription's queue for the next round, after
+the commands and timers: a busy topic cannot hold the thread; past its
+``TRIGGER_DEPTH`` the middleware drops the oldest), converts each
 message once to JSON (``rosworker/encode.py``; NaN and ±inf as the strings
 "NaN", "Infinity", "-Infinity") and evaluates every trigger of the topic
 on it.  A topic nobody watches has no such subscription: zero per-message
@@ -76,6 +78,7 @@ log = logging.getLogger("sovd.rosworker.triggers")
 CONDITIONS = ("OnChange", "OnChangeTo", "EnterRange", "LeaveRange")
 TRIGGER_DEPTH = 256       # messages a watched topic's subscription queues between two rounds
 TAKES_PER_ROUND = 256     # messages one topic may take per round of the loop
+ROUND_BUDGET = 0.01       # seconds of evaluation per round of the loop, all topics together
 PENDING_RETRY = 0.25      # seconds between tries to subscribe a watched topic not in the graph yet
 GRAPH_CHECK = 1.0         # seconds between checks of a watched topic's publishers' type
 TERMINATED_KEEP = 60.0    # seconds a fired one-shot trigger stays readable (status "terminated")
@@ -306,14 +309,17 @@ class DataSource:
         if now - self._last_check >= GRAPH_CHECK:
             self._last_check = now
             self.registry.executor.guarded("the trigger topics' type check", self._check_types)
+        until = now + ROUND_BUDGET
         for watch in list(self.live):
             if watch.sub is not None:
-                self.registry.executor.guarded(f"the triggers of {watch.topic}", self._drain, watch)
+                self.registry.executor.guarded(f"the triggers of {watch.topic}", self._drain, watch, until)
+        if len(self.live) > 1:  # the next round starts with the next topic: none waits behind a busy one
+            self.live.append(self.live.pop(0))
 
-    def _drain(self, watch: _TopicWatch) -> None:
+    def _drain(self, watch: _TopicWatch, until: float) -> None:
         handle = watch.sub.handle
         for _ in range(TAKES_PER_ROUND):
-            if watch.sub is None or not watch.triggers:
+            if watch.sub is None or not watch.triggers or time.monotonic() >= until:
                 return
             try:
                 taken = handle.take_message(watch.cls, False)

@@ -324,7 +324,7 @@ def test_a_1khz_topic_with_50_triggers_costs_one_take_per_message_and_counts_wha
         body = {"resource": f"/api/v1/apps/{app}/data/tf/counter", "trigger_condition": {"condition_type": "OnChange"},
                 "multishot": True}
         triggers = [requests.post(gw.api + base, json=body, timeout=10).json() for _ in range(50)]
-        assert all(t.get("status") == "active" for t in triggers)
+        assert all(t.get("status") == "active" for t in triggers), [t for t in triggers if t.get("status") != "active"][:2]
         reader = EventStream(gw.port, triggers[0]["event_source"])
         stalled = EventStream(gw.port, triggers[1]["event_source"], recv_buffer=4096)  # never read
         worker = psutil.Process(gw.rosworker_pid())
