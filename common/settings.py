@@ -170,7 +170,7 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("max_triggers", int, 1000, "triggers held at once", 1, 100000),
     Setting("max_triggers_per_client", int, 100, "triggers one client address may hold at once", 1, 100000),
     Setting("trigger_store", str, "", "file that keeps the triggers across restarts (default: "
-            "triggers.json in runtime_dir; give a path on disk to keep persistent ones across reboots)"),
+            "triggers.json in $STATE_DIRECTORY under systemd, else in runtime_dir)"),
 )
 
 BY_NAME = {s.name: s for s in SETTINGS}

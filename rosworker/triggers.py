@@ -686,8 +686,11 @@ class TriggerRegistry:
         self.store.submit(self.version, list(self._records.values()), then)
 
 
-def store_path(setting: str, runtime_dir: str) -> str:
-    return setting or os.path.join(runtime_dir, FILE_NAME)
+def store_path(setting: str, runtime_dir: str, environ=os.environ) -> str:
+    """``trigger_store``; else ``triggers.json`` in systemd's ``$STATE_DIRECTORY`` (kept across reboots),
+    else in the runtime dir (kept across gateway restarts, not across reboots)."""
+    state_dir = (environ.get("STATE_DIRECTORY") or "").split(":")[0]
+    return setting or os.path.join(state_dir or runtime_dir, FILE_NAME)
 
 
 def events_sender(streams) -> Callable[[list[bytes]], None]:
