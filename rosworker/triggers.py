@@ -635,6 +635,9 @@ class TriggerRegistry:
 
     # ---- the set ------------------------------------------------------------------------------------
     def _add(self, trigger: Trigger) -> None:
+        # Sequence numbers go on from the wall clock, so a stream that stays open across a ROS
+        # worker restart does not take the restored trigger's events for ones it already sent.
+        trigger.seq = trigger.opened_seq = max(trigger.seq, time.time_ns())
         self.triggers[trigger.id] = trigger
         if trigger.client:
             self.per_client[trigger.client] = self.per_client.get(trigger.client, 0) + 1
