@@ -66,6 +66,7 @@ import zmq
 from common.process import write_atomic
 from ipc import events, jsonpointer, protocol
 from ipc.errors import IpcError
+from ipc.topics import InvalidTopic, normalize_topic
 
 from . import msgtypes, qos
 from .encode import to_json
@@ -535,6 +536,11 @@ class TriggerRegistry:
             strings[name] = value
         if strings["bytes"] not in protocol.BYTES_MODES:
             raise IpcError("bad-request", "bytes: expected 'array' or 'base64'")
+        if source == "data":
+            try:
+                strings["target"] = normalize_topic(strings["target"])
+            except InvalidTopic as exc:
+                raise IpcError("invalid-topic", str(exc), {"topic": strings["target"][:300]}) from None
         path = args.get("path", "")
         try:
             jsonpointer.parse(path)

@@ -240,6 +240,36 @@ def test_a_trigger_made_through_one_worker_streams_through_the_other(gw, topic):
     pytest.fail("every stream landed on the worker that made its trigger")
 
 
+
+def test_hostile_trig_commands_are_refused_by_the_ros_worker_and_never_fatal(gw):
+    from ipc.errors import IpcError
+
+    base = {"collection": "apps", "entity_id": "x", "resource": "/r", "source": "data", "target": "/trig_ok",
+            "bytes": "array", "condition": {"condition_type": "OnChange"}}
+    client = gw.rosworker_client()
+    try:
+        for bad, code in [({"target": "1bad"}, "invalid-topic"), ({"target": "/a//b"}, "invalid-topic"),
+                          ({"source": "faults"}, "bad-request"), ({"condition": {"condition_type": "EnterRange"}},
+                                                                  "bad-request"),
+                          ({"condition": None}, "bad-request"), ({"path": "x"}, "bad-request"),
+                          ({"path": "/~9"}, "bad-request"), ({"lifetime": -1}, "bad-request"),
+                          ({"lifetime": 2**40}, "bad-request"), ({"multishot": 1}, "bad-request"),
+                          ({"bytes": "hex"}, "bad-request"), ({"collection": 5}, "bad-request"),
+                          ({"target": None}, "bad-request")]:
+            with pytest.raises(IpcError) as err:
+                client.call("trig_create", {**base, **bad}, 5)
+            assert err.value.code == code, (bad, err.value)
+        for cmd in ("trig_get", "trig_open", "trig_delete", "trig_update"):
+            with pytest.raises(IpcError) as err:
+                client.call(cmd, {"collection": "apps", "entity_id": "x", "id": ["trig_"], "lifetime": 5}, 5)
+            assert err.value.code == "no-such-trigger"
+        made = client.call("trig_create", base, 5)
+        assert made["status"] == "active" and made["target"] == "/trig_ok"
+        client.call("trig_delete", {"collection": "apps", "entity_id": "x", "id": made["id"]}, 5)
+    finally:
+        client.close()
+    assert gw.get("/health").json()["x-medkit-subscription-executor"]["worker_alive"]
+
 # ---- on gateways of their own -------------------------------------------------------------------------------
 def test_triggers_survive_a_ros_worker_sigkill_and_persistent_ones_a_gateway_restart():
     runtime_dir = tempfile.mkdtemp(prefix="sovd-trig-")
