@@ -478,6 +478,8 @@ class TriggerRegistry:
                         or not (restart or fields["persistent"] is True):
                     continue
                 fields["condition"] = check_condition(fields["condition"])
+                if not _valid_record(fields):
+                    continue
                 trigger = Trigger(**fields)
             except (KeyError, TypeError, ValueError, IpcError):
                 continue
@@ -693,6 +695,18 @@ class TriggerRegistry:
 
     def _save(self, then: Callable[[], None] | None = None) -> None:
         self.store.submit(self.version, list(self._records.values()), then)
+
+
+def _valid_record(fields: dict[str, Any]) -> bool:
+    """A stored trigger's fields have the types a created one has (the file may have been edited)."""
+    strings = ("id", "collection", "entity_id", "resource", "source", "target", "bytes", "path", "client")
+    lifetime = fields["lifetime"]
+    return (all(isinstance(fields[name], str) for name in strings) and fields["id"].startswith("trig_")
+            and fields["bytes"] in protocol.BYTES_MODES
+            and all(isinstance(fields[name], bool) for name in ("multishot", "persistent"))
+            and isinstance(fields["created_at_ns"], int)
+            and (lifetime is None or (isinstance(lifetime, int) and not isinstance(lifetime, bool)
+                                      and 0 < lifetime <= MAX_LIFETIME)))
 
 
 def store_path(setting: str, runtime_dir: str, environ=os.environ) -> str:

@@ -342,6 +342,36 @@ def test_a_persistent_trigger_is_restored_before_its_topic_exists():
         shutil.rmtree(runtime_dir, ignore_errors=True)
 
 
+def test_a_damaged_store_restores_only_the_sound_persistent_triggers():
+    runtime_dir = tempfile.mkdtemp(prefix="sovd-trig-")
+    os.chmod(runtime_dir, 0o700)
+    good = {"id": "trig_00000000000000aa", "collection": "apps", "entity_id": "someone", "resource": "/r",
+            "source": "data", "target": "/trig_store/value", "bytes": "array", "path": "/data",
+            "condition": {"condition_type": "OnChange"}, "multishot": True, "persistent": True, "lifetime": None,
+            "created_at_ns": 1, "client": "", "status": "active", "expires_at_ns": None}
+    bad = [{**good, "id": "trig_00000000000000b1", "lifetime": "x"},
+           {**good, "id": "trig_00000000000000b2", "condition": {"condition_type": "Sometimes"}},
+           {**good, "id": "trig_00000000000000b3", "path": "no-slash"},
+           {**good, "id": "trig_00000000000000b4", "persistent": False},
+           {**good, "id": "trig_00000000000000b5", "expires_at_ns": 5},
+           {**good, "id": "trig_00000000000000b6", "source": "faults"},
+           {**good, "id": "trig_00000000000000b7", "multishot": "yes"},
+           {k: v for k, v in good.items() if k != "target"}, "junk", 7]
+    with open(os.path.join(runtime_dir, "triggers.json"), "w") as fh:
+        json.dump({"triggers": [*bad, good]}, fh)
+    gw = Gateway("--workers", "1", "--log-level", "warning", runtime_dir=runtime_dir)
+    try:
+        client = gw.rosworker_client()
+        try:
+            items = client.call("trig_list", {"collection": "apps", "entity_id": "someone"}, 5)["items"]
+        finally:
+            client.close()
+        assert [t["id"] for t in items] == [good["id"]]
+        assert gw.get("/health").json()["x-medkit-subscription-executor"]["worker_alive"]
+    finally:
+        gw.stop()
+        shutil.rmtree(runtime_dir, ignore_errors=True)
+
 def test_a_1khz_topic_with_50_triggers_costs_one_take_per_message_and_counts_what_a_slow_reader_drops():
     app, rate = "trig_fast", 1000
     node = RosNode({"node": app, "namespace": "/tf", "publish": [
