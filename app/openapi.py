@@ -482,6 +482,88 @@ def _subscription_paths(collection: str) -> dict[str, Any]:
     }
 
 
+# ---- triggers (app/routes/triggers.py) ------------------------------------------------------------
+_CONDITION = {
+    "type": "object", "required": ["condition_type"],
+    "properties": {
+        "condition_type": {"enum": ["OnChange", "OnChangeTo", "EnterRange", "LeaveRange"],
+                           "description": "OnChange: every change, and the first value; OnChangeTo: the value "
+                                          "becomes target_value; EnterRange/LeaveRange: the value crosses into "
+                                          "or out of [lower_bound, upper_bound] (inclusive; NaN is in no range)"},
+        "target_value": {"description": "OnChangeTo: any JSON value"},
+        "lower_bound": {"type": "number"}, "upper_bound": {"type": "number"}},
+}
+SCHEMAS.update({
+    "Trigger": _obj(
+        ["id", "status", "observed_resource", "event_source", "protocol", "trigger_condition", "multishot",
+         "persistent"],
+        id={**STR, "pattern": "^trig_[0-9a-f]{16}$"},
+        status={"enum": ["active", "terminated"], "description": "terminated: a one-shot trigger that fired"},
+        observed_resource=STR, event_source=STR, protocol={"const": "sse"}, trigger_condition=_CONDITION,
+        multishot={"type": "boolean"}, persistent={"type": "boolean"},
+        lifetime={**INT, "minimum": 1, "description": "seconds (from creation, or from the last PUT)"},
+        path={**STR, "description": "JSON Pointer into the message"}),
+    "TriggerList": _obj(["items"], items={"type": "array", "items": ref("Trigger")}),
+    "TriggerCreateRequest": _obj(
+        ["resource", "trigger_condition"],
+        resource={**STR, "description": "/api/v1/{apps|components|functions}/{id}/data/{topic}",
+                  "examples": ["/api/v1/apps/temp_sensor/data/powertrain/engine/temperature"]},
+        trigger_condition=_CONDITION, path={**STR, "maxLength": 1024, "description": "JSON Pointer (RFC 6901)"},
+        protocol={**STR, "default": "sse"}, multishot={"type": "boolean", "default": False},
+        persistent={"type": "boolean", "default": False, "description": "kept across gateway restarts"},
+        lifetime={**INT, "minimum": 1, "description": "seconds; absent: no expiry"}),
+    "TriggerUpdateRequest": _obj(["lifetime"], lifetime={**INT, "minimum": 1, "description": "seconds from now"}),
+})
+
+
+def _trigger_paths(collection: str) -> dict[str, Any]:
+    """medkit's triggers, on apps, components and functions."""
+    title, param = _title(collection), PARAM_NAMES[collection]
+    base = f"/{collection}/{{{param}}}/triggers"
+    trig_param = {"name": "trigger_id", "in": "path", "required": True, "schema": STR}
+    params = [_id_param(collection)]
+    not_found = ("404", "Unknown entity (`entity-not-found`) or trigger (`resource-not-found`, `Trigger not "
+                        "found`, parameters `trigger_id`)")
+    bad = ("400", "A missing or invalid field, condition, JSON Pointer or lifetime, an unknown or not "
+                  "observable collection (`invalid-parameter`, parameters `parameter`), a malformed resource "
+                  "(`x-medkit-invalid-resource-uri`) or one of another entity (`x-medkit-entity-mismatch`)")
+    unauthorized = ("401", "An API token is configured and the request has none (`unauthorized`)")
+    forbidden = ("403", "An API token is configured and the request's is wrong (`forbidden`)")
+    token = {"security": [{"bearerAuth": []}, {}]}
+    full = ("503", "At the max_triggers cap, or this client's max_triggers_per_client cap "
+                   "(`service-unavailable`), or the ROS worker is away; retry after `Retry-After` seconds")
+    created = {"description": "Created", "headers": {"Location": {"schema": STR}},
+               "content": {"application/json": {"schema": ref("Trigger")}}}
+    create = _op(f"create{title}Trigger", "Triggers", f"Watch a data item of a {collection[:-1]} for a "
+                 "condition (events over SSE)", None, bad, unauthorized, forbidden, not_found, *BODY_ERRORS,
+                 full, "504", **token, parameters=params, requestBody={"required": True, "content": {
+                     "application/json": {"schema": ref("TriggerCreateRequest")}}})
+    create["responses"] = {"201": created, **create["responses"]}
+    delete = _op(f"delete{title}Trigger", "Triggers", "Remove a trigger; an open stream of it ends at once",
+                 None, unauthorized, forbidden, not_found, "503", "504", **token, parameters=params + [trig_param])
+    delete["responses"] = {"204": {"description": "Deleted"}, **delete["responses"]}
+    events = {"description": "text/event-stream: `data: {\"timestamp\", \"payload\"}` each time the "
+                             "condition fires, payload being the message; `{\"timestamp\", \"error\"}` when "
+                             "a message cannot be read; `:` keep-alives every 15 s",
+              "content": {"text/event-stream": {"schema": STR}}}
+    return {
+        base: {"get": _op(f"list{title}Triggers", "Triggers", f"A {collection[:-1]}'s triggers",
+                          _ok("TriggerList"), "400", "404", "503", "504", parameters=params),
+               "post": create},
+        base + "/{trigger_id}": {
+            "get": _op(f"get{title}Trigger", "Triggers", "One trigger", _ok("Trigger"), not_found, "503", "504",
+                       parameters=params + [trig_param]),
+            "put": _op(f"update{title}Trigger", "Triggers", "A new lifetime, counted from now", _ok("Trigger"),
+                       bad, unauthorized, forbidden, not_found, *BODY_ERRORS, "503", "504", **token,
+                       parameters=params + [trig_param], requestBody={"required": True, "content": {
+                           "application/json": {"schema": ref("TriggerUpdateRequest")}}}),
+            "delete": delete},
+        base + "/{trigger_id}/events": {
+            "get": _op(f"stream{title}TriggerEvents", "Triggers", "The trigger's Server-Sent Events stream",
+                       events, not_found, "503", "504", parameters=params + [trig_param])},
+    }
+
+
 METRICS_OP = _op(
     "getMetrics", "Server", "Prometheus metrics (text exposition format); beside the API, at /metrics",
     {"description": "The gateway's metrics in Prometheus' text format: HTTP requests by route template, "
@@ -768,6 +850,8 @@ def _document() -> dict[str, Any]:
         paths.update(_subscription_paths(collection))
     paths.update(_docs_paths())
     paths.update({k: v for c in ("apps", "components", "functions") for k, v in _configuration_paths(c).items()})
+    for collection in ("apps", "components", "functions"):  # triggers (app/routes/triggers.py)
+        paths.update(_trigger_paths(collection))
     paths.update(_not_implemented_paths())
     for collection in ("apps", "components", "functions"):  # logs (issue 22)
         paths.update(_logs_paths(collection))
@@ -787,6 +871,7 @@ def _document() -> dict[str, Any]:
                  {"name": "Operations", "description": "ROS 2 services and actions (operations: services "
                                                        "and actions)"},
                  {"name": "Logs", "description": "The robot's /rosout, per entity (issue 22)"},
+                 {"name": "Triggers", "description": "Condition triggers: events over SSE"},
                  *({"name": f.tag, "description": f"Not implemented: 501 ({f.message})"}
                    for f in unimplemented.FEATURES.values())],
         "paths": paths,

@@ -67,6 +67,12 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
     app.register_blueprint(configurations.bp)
     from .routes import logs  # logs (issue 22)
     app.register_blueprint(logs.bp)
+    # Triggers (app/routes/triggers.py, their streams app/triggerstreams.py).
+    from . import triggerstreams
+    from .routes import triggers
+
+    triggerstreams.init_app(app)
+    app.register_blueprint(triggers.bp)
     if cfg.debug_commands:  # test and bench routes; never in production
         from .routes import debug
 

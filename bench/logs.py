@@ -1,6 +1,6 @@
 """``make bench``'s logs row (issue 22): the ROS worker's CPU with /rosout at 1 kHz, beside its DDS floor.
 
-A node (``tests/support/roslogger.py``) publishes 1,000 /rosout lines a second;
+A node (``bench/roslogger.py``) publishes 1,000 /rosout lines a second;
 the ROS worker takes them into its ring buffers (``rosworker/logs.py``) while
 ``bench/rosoutfloor.py`` holds the same subscription and never reads it.  Both
 are measured over the same window, and over one as long before the lines
@@ -14,7 +14,7 @@ import time
 
 import psutil
 
-from tests.support.roslogger import LoggerNode
+from bench.roslogger import LoggerNode
 
 from .procs import measure_cpu, ros_helper
 

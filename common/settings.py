@@ -205,6 +205,11 @@ SETTINGS: tuple[Setting, ...] = (
             2**16, 2**34),
     Setting("log_max_nodes", int, 2000, "nodes whose /rosout lines are kept (a new node's past it are "
             "dropped and counted)", 1, 100000),
+    # --- triggers (README "Triggers") ---
+    Setting("max_triggers", int, 1000, "triggers held at once", 1, 100000),
+    Setting("max_triggers_per_client", int, 100, "triggers one client address may hold at once", 1, 100000),
+    Setting("trigger_store", str, "", "file that keeps the triggers across restarts (default: "
+            "triggers.json in $STATE_DIRECTORY under systemd, else in runtime_dir)"),
 )
 
 BY_NAME = {s.name: s for s in SETTINGS}

@@ -150,6 +150,8 @@ COUNTERS: tuple[Counter, ...] = (
       "sovd_ros_ipc_dropped_frames"),
     C("details", "commands", TIMINGS, "Queued commands run on the ROS thread, by command", "sovd_ros_commands",
       label="command"),
+    C("details", "phase_changes", COUNTER, "Times a topic's stream ticks were phased to its messages' arrivals",
+      "sovd_ros_stream_phase_changes"),
     C("details", "ticks", BY, "Rounds of the stream timers, by interval", "sovd_ros_stream_ticks",
       label="interval"),
     # ---- x-medkit-operations (operations: services and actions) ----
@@ -198,6 +200,15 @@ COUNTERS: tuple[Counter, ...] = (
       setting="log_max_bytes"),
     C("logs", "logs_max_nodes", GAUGE, "Most nodes buffered (log_max_nodes)", "sovd_ros_logs_max_nodes",
       setting="log_max_nodes"),
+    # ---- triggers (rosworker/triggers.py) ----
+    C("streams", "active_triggers", GAUGE, "Triggers active now", "sovd_ros_triggers"),
+    C("streams", "max_triggers", GAUGE, "Most triggers held at once (max_triggers)", "sovd_ros_triggers_cap",
+      setting="max_triggers"),
+    C("streams", "triggers_created", COUNTER, "Triggers created", "sovd_ros_triggers_created"),
+    C("streams", "trigger_messages", COUNTER, "Messages of watched topics taken and evaluated (one per "
+      "message, however many triggers watch the topic)", "sovd_ros_trigger_messages"),
+    C("streams", "trigger_events", COUNTER, "Trigger events sent to the HTTP workers (firings)",
+      "sovd_ros_trigger_events"),
 )
 del C
 

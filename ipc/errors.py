@@ -54,6 +54,9 @@ CODES: frozenset[str] = frozenset({
     "parameter-failed",
     # faults (rosworker/faults.py)
     "no-such-fault",
+    # triggers (rosworker/triggers.py)
+    "no-such-trigger",
+    "triggers-full",
 })
 
 

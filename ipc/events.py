@@ -47,3 +47,17 @@ def endpoint_beside(work_endpoint: str) -> str:
 def data_key(interval: str, mode: str, topic: str) -> bytes:
     """The key of a topic's frames at one interval and bytes mode (topic names hold no ``|``)."""
     return f"d|{interval}|{mode}|{topic}|".encode()
+
+
+# Triggers (rosworker/triggers.py): ``t|e|<id>|`` + msgpack {"ts", "seq", "last"?, "error"?} + the
+# message's JSON, sent only when a trigger fires; ``t|c|<id>|`` + msgpack {"event", "id"} when one
+# is deleted or expires.  HTTP workers subscribe to ``t|c|`` and to the events of their open streams.
+TRIGGER_CONTROL_PREFIX = b"t|c|"
+
+
+def trigger_event_key(trigger_id: str) -> bytes:
+    return b"t|e|" + trigger_id.encode() + b"|"
+
+
+def trigger_control_key(trigger_id: str) -> bytes:
+    return TRIGGER_CONTROL_PREFIX + trigger_id.encode() + b"|"

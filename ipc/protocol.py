@@ -43,6 +43,8 @@ COMMANDS = (
     "fault_list", "fault_get", "fault_clear", "fault_events",
     "logs", "log_config_get", "log_config_set",  # logs (issue 22): rosworker/logs.py
 )
+# Triggers (rosworker/triggers.py).
+COMMANDS += ("trig_create", "trig_list", "trig_get", "trig_update", "trig_delete", "trig_open")
 # Commands answered from counters by the control thread, without queueing behind ROS work;
 # clients send them to the control socket.
 IMMEDIATE = ("ping", "stats")

@@ -229,7 +229,7 @@ class Worker:
         from .faultstore import FaultStore
         faults = FaultManager(node, executor, pool, stats,
                               FaultStore(cfg.state_dir or config.default_state_dir(os.environ)), graph=graph,
-                              endpoints=endpoints, send=streams.send_frames,
+                              endpoints=endpoints, send=streams.send,
                               confirm_count=cfg.fault_confirm_count, confirm_s=cfg.fault_confirm_s,
                               heal_count=cfg.fault_heal_count, stale_s=cfg.fault_stale_s,
                               max_faults=cfg.max_faults, codes=cfg.fault_codes,
@@ -245,6 +245,13 @@ class Worker:
                           max_nodes=cfg.log_max_nodes)
         executor.guarded("subscribing to /rosout", logbook.start)
         commands.handlers.update(logbook.handlers)
+        # Triggers (rosworker/triggers.py): their commands, their store, restored before discovery.
+        from .triggers import TriggerRegistry, events_sender, store_path
+        triggers = TriggerRegistry(node, executor, stats, endpoints, events_sender(streams),
+                                   max_triggers=cfg.max_triggers, max_per_client=cfg.max_triggers_per_client,
+                                   store_path=store_path(cfg.trigger_store, cfg.runtime_dir))
+        triggers.restore(restart=bool(self.restart))
+        commands.handlers.update(triggers.handlers)
         executor.serve(commands.handlers)
         executor.watch_cold(pool.cold_entries, pool.on_ready)
 
@@ -274,6 +281,7 @@ class Worker:
             self._rewarm(executor, pool, rewarm, time.monotonic() + REWARM_FOR)
         streams.restore(subscriptions)
         state.start()
+        triggers.start()  # triggers: the store's writer
 
         try:
             executor.bind()
@@ -297,6 +305,7 @@ class Worker:
             # Write what is pending and answer the commands that waited for it; from here on
             # a change (a queued command drained below) is written on this thread.
             state.close(STATE_FLUSH_WAIT)
+            triggers.close()  # triggers: their store written, their subscriptions destroyed
             executor.run_posted()
             executor.guarded("the pool's shutdown", pool.shutdown)
             executor.guarded("the operations' shutdown", operations.shutdown)  # operations

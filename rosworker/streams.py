@@ -527,8 +527,11 @@ class StreamRegistry:
         self.executor.call_later(HEARTBEAT_EVERY, self._heartbeat)
         self._send([events.HEARTBEAT_KEY, protocol.pack({"pid": os.getpid(), "t": time.time_ns()})])
 
-    def send_frames(self, frames: list[bytes]) -> None:
-        """Publish ``frames`` (a key, then its parts) on the events channel (ROS thread; faults)."""
+    # Other pieces (faults: rosworker/faults.py; triggers: rosworker/triggers.py) send their events
+    # on this channel too.
+    def send(self, frames: list[bytes]) -> None:
+        """Publish ``frames`` (a key, then its parts) on the events channel (ROS thread; never blocks;
+        dropped when it is closed)."""
         self._send(frames)
 
     def _send(self, frames: list[bytes]) -> None:

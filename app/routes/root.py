@@ -21,11 +21,6 @@ bp = Blueprint("root", __name__, url_prefix=API_BASE)
 NAME = DISTRIBUTION
 SOVD_VERSION = openapi.SOVD_VERSION
 
-# medkit's capabilities that this gateway does not serve and whose routes are not in
-# unimplemented.ROUTES (later issues implement them).
-NOT_SERVED = ("triggers",)
-
-
 
 @bp.get("/")
 def root():
@@ -42,15 +37,14 @@ def root():
             "authentication": bool(cfg.api_token),
             "docs": True,
             "cyclic_subscriptions": True,
-            "faults": True,  # faults (app/routes/faults.py)
-            "logs": True,  # logs (issue 22): app/routes/logs.py
-            # medkit's features not served here.  Those of unimplemented.ROUTES answer 501;
-            # those of NOT_SERVED answer 404 until the issues that implement them.
-            **{name: False for name in NOT_SERVED},
-            **unimplemented.capabilities(),
-            # operations: services and actions (executing them needs allow_operations)
+            # services and actions (app/routes/operations.py); executing them needs allow_operations
             "operations": True, "async_actions": True, "operation_execution": bool(cfg.allow_operations),
-            "configurations": True,  # configurations: app/routes/configurations.py
+            "configurations": True,  # ROS 2 parameters (app/routes/configurations.py)
+            "faults": True,  # /diagnostics (app/routes/faults.py)
+            "logs": True,  # /rosout (app/routes/logs.py)
+            "triggers": True,  # condition triggers (app/routes/triggers.py)
+            # medkit's features not served here: their routes answer 501 (app/routes/unimplemented.py)
+            **unimplemented.capabilities(),
         },
     })
 

@@ -11,8 +11,8 @@ it is answered 501 here for the same reason.
 :data:`ROUTES` is the one table: the blueprint, the OpenAPI document
 (``app/openapi.py``) and the capabilities of ``GET /api/v1/``
 (``app/routes/root.py``) are all made from it.  Nothing here talks to the ROS
-worker.  Operations, configurations, faults, logs and triggers are left to the
-issues that implement them (their routes answer 404 until then); medkit has no
+worker.  Operations, configurations, faults, logs and triggers have routes of their
+own (``app/routes/``); medkit has no
 ``modes`` routes, so neither has this table.
 """
 

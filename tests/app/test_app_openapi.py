@@ -224,6 +224,43 @@ def test_every_route_answers_per_the_document(doc):
                 r = client.open(path, method=method, **kw)
                 check(doc, method, path, r)
                 seen.setdefault(operation(doc, method, path)[0], set()).add(r.status_code)
+        # Triggers (their event streams' 200 is text/event-stream: tests/app/test_app_triggers.py).
+        for collection in ("apps", "components", "functions"):
+            base = f"/api/v1/{collection}/{ENTITY[collection]}/triggers"
+            resource = f"/api/v1/{collection}/{ENTITY[collection]}/data/powertrain/engine/temperature"
+            good = {"resource": resource, "trigger_condition": {"condition_type": "OnChange"}, "lifetime": 30}
+            made = client.post(base, json=good, headers=auth)
+            trig = f"{base}/{made.get_json()['id']}"
+            wrong = {"Authorization": "Bearer wrong"}
+            unknown = base + "/trig_0000000000000000"
+            for method, path, kw in [
+                ("POST", base, {"json": good, "headers": auth}),
+                ("POST", base, {"json": {**good, "trigger_condition": {}}, "headers": auth}),
+                ("POST", base, {"json": {**good, "resource": "/api/v1/apps/x/data/t"}, "headers": auth}),
+                ("POST", base, {"json": {**good, "resource": "/api/v1/apps/x/../data/t"}, "headers": auth}),
+                ("POST", f"/api/v1/{collection}/nope/triggers", {"json": good, "headers": auth}),
+                ("POST", base, {"json": good}), ("POST", base, {"json": good, "headers": wrong}),
+                ("POST", base, {"data": b"{}", "content_type": "text/plain", "headers": auth}),
+                ("GET", base, {}), ("GET", f"/api/v1/{collection}/bad.id/triggers", {}),
+                ("GET", trig, {}), ("GET", unknown, {}),
+                ("PUT", trig, {"json": {"lifetime": 60}, "headers": auth}),
+                ("PUT", trig, {"json": {"lifetime": 0}, "headers": auth}),
+                ("PUT", trig, {"data": b'{"lifetime": 5}', "content_type": "text/plain", "headers": auth}),
+                ("PUT", unknown, {"json": {"lifetime": 60}, "headers": auth}),
+                ("PUT", trig, {"json": {"lifetime": 60}}), ("PUT", trig, {"json": {"lifetime": 60}, "headers": wrong}),
+                ("GET", unknown + "/events", {}),
+                ("DELETE", trig, {}), ("DELETE", trig, {"headers": wrong}),
+                ("DELETE", trig, {"headers": auth}), ("DELETE", trig, {"headers": auth}),
+            ]:
+                r = client.open(path, method=method, **kw)
+                check(doc, method, path, r)
+                seen.setdefault(operation(doc, method, path)[0], set()).add(r.status_code)
+        fw.errors["trig_create"] = IpcError("triggers-full", "full", {"max_triggers": 1000})
+        r = client.post("/api/v1/apps/temp_sensor/triggers", json={
+            "resource": "/api/v1/apps/temp_sensor/data/x", "trigger_condition": {"condition_type": "OnChange"}},
+            headers=auth)
+        assert r.status_code == 503 and r.headers["Retry-After"] == "5"
+        check(doc, "POST", "/api/v1/apps/temp_sensor/triggers", r)
         # medkit's routes not served here: 501 whatever the ids (app/routes/unimplemented.py).
         for route, path, _ in unimplemented.paths():
             concrete = "/api/v1" + re.sub(r"\{[^}]+\}", "x1", path)
@@ -310,8 +347,8 @@ def test_every_operation_with_a_json_body_documents_the_body_errors(doc):
     with_body = [(method, path, op) for path, ops in doc["paths"].items() for method, op in ops.items()
                  if "requestBody" in op]
     # PUT data of 4 collections; POST and PUT cyclic-subscriptions of 3; POST and PUT executions of 3;
-    # PUT configurations of 3; PUT logs/configuration of 3
-    assert len(with_body) == 22
+    # PUT configurations of 3; PUT logs/configuration of 3; POST and PUT triggers of 3
+    assert len(with_body) == 28
     for method, path, op in with_body:
         assert list(op["requestBody"]["content"]) == ["application/json"], (method, path)
         assert {"408", "413", "415"} <= set(op["responses"]), (method, path)

@@ -39,10 +39,10 @@ def test_root_says_what_is_not_served(client):
     """The capabilities say what answers 501 (app/routes/unimplemented.py) and what is not there yet."""
     body = client.get("/api/v1/").get_json()
     caps = body["capabilities"]
-    for name in ("bulk_data", "locking", "scripts", "lifecycle", "updates", "triggers"):
+    for name in ("bulk_data", "locking", "scripts", "lifecycle", "updates"):
         assert caps[name] is False, name
     for name in ("cyclic_subscriptions", "docs", "operations", "async_actions", "configurations", "faults",
-                 "logs"):
+                 "logs", "triggers"):
         assert caps[name] is True, name
     assert "GET /api/v1/updates" in body["endpoints"]
     assert "POST /api/v1/apps/{app_id}/locks" in body["endpoints"]
@@ -155,6 +155,8 @@ def test_entity_docs_fill_in_the_entity(client):
         "/components/test-robot/docs", "/components/test-robot/data/docs",
         # configurations: app/routes/configurations.py
         "/components/test-robot/configurations", "/components/test-robot/configurations/{config_id}",
+        "/components/test-robot/triggers", "/components/test-robot/triggers/{trigger_id}",
+        "/components/test-robot/triggers/{trigger_id}/events",
         # medkit's routes not served here (501), in the order of unimplemented.ROUTES
         *dict.fromkeys(path.replace("{component_id}", "test-robot")
                        for _, path, collection in unimplemented.paths() if collection == "components"),

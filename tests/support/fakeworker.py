@@ -241,6 +241,8 @@ class FakeWorker:
                              for n, fqn in enumerate(args.get("nodes") or [], 1)]}
         if cmd in ("log_config_get", "log_config_set"):
             return {"severity_filter": args.get("severity_filter", "debug"), "max_entries": args.get("max_entries", 100)}
+        if cmd.startswith("trig_"):  # triggers
+            return self._trigger(cmd, args)
         return IpcError("unknown-command", f"unknown command {cmd!r}")
 
 
@@ -271,6 +273,32 @@ class FakeWorker:
             return sub
         if cmd == "sub_delete":
             del self.subscriptions[sub["id"]]
+            return {}
+        return IpcError("unknown-command", f"unknown command {cmd!r}")
+
+    # Triggers: the ``trig_*`` commands over a plain dict (the real registry is rosworker/triggers.py).
+    def _trigger(self, cmd: str, args: dict[str, Any]) -> Any:
+        triggers = self.__dict__.setdefault("triggers", {})
+        owner = (args.get("collection"), args.get("entity_id"))
+        if cmd == "trig_create":
+            trig = {k: args[k] for k in ("collection", "entity_id", "resource", "source", "target", "bytes", "path",
+                                         "condition", "multishot", "persistent", "lifetime", "client")}
+            trig.update(id=f"trig_{len(triggers) + 1:016x}", status="active", created_at_ns=time.time_ns(),
+                        expires_at_ns=None, replayable=False)
+            triggers[trig["id"]] = trig
+            return trig
+        if cmd == "trig_list":
+            return {"items": [t for t in triggers.values() if (t["collection"], t["entity_id"]) == owner]}
+        trig = triggers.get(args.get("id"))
+        if trig is None or (trig["collection"], trig["entity_id"]) != owner:
+            return IpcError("no-such-trigger", "Trigger not found", {"trigger_id": args.get("id")})
+        if cmd in ("trig_get", "trig_open"):
+            return trig
+        if cmd == "trig_update":
+            trig["lifetime"] = args["lifetime"]
+            return trig
+        if cmd == "trig_delete":
+            del triggers[trig["id"]]
             return {}
         return IpcError("unknown-command", f"unknown command {cmd!r}")
 

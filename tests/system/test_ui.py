@@ -472,3 +472,38 @@ def test_the_logs_panel_tails_the_robots_lines_without_reloading_and_filters_by_
     expect(tab.locator("#logs-body .log-line[data-severity='error']").first).to_contain_text("wheel slip")
     for severity in ("debug", "info", "warning"):
         expect(tab.locator(f"#logs-body .log-line[data-severity='{severity}']")).to_have_count(0)
+# ---- "notify me when…" (app/ui/js/notify.js): a LeaveRange trigger and its events ----
+def test_notify_me_when_a_field_leaves_its_range(gw, page):
+    from tests.support.linepub import LinePublisher
+
+    tab, _ = page
+    pub = LinePublisher("ui_notify_probe", "/ui_notify/level", "std_msgs/msg/Float64")
+    try:
+        poll_until(lambda: gw.get("/apps/ui_notify_probe").status_code == 200, 30, message="the probe's app")
+        tab.goto(gw.url + "/ui/#/apps/ui_notify_probe/data/ui_notify/level")
+        sign_in(tab)
+        pub.wait_subscribers(1)    # the page's cyclic subscription
+        pub.send({"data": 5.0})
+        expect(leaf(tab, "data")).to_have_text(NUMBER)
+        form = tab.locator("#item form.notify")
+        tab.click("#item button.pick[data-path='data']")   # picking the field fills in its JSON Pointer
+        expect(form.locator("input[type=text]")).to_have_value("/data")
+        form.locator("input[aria-label='lower bound']").fill("0")
+        form.locator("input[aria-label='upper bound']").fill("10")
+        form.locator("button[type=submit]").click()
+        expect(form).to_have_attribute("data-trigger", re.compile(r"^trig_[0-9a-f]{16}$"))
+        trig = form.get_attribute("data-trigger")
+        made = gw.get(f"/apps/ui_notify_probe/triggers/{trig}").json()
+        assert made["trigger_condition"] == {"condition_type": "LeaveRange", "lower_bound": 0, "upper_bound": 10}
+        pub.wait_subscribers(2)    # the page's cyclic subscription and the trigger's
+        for value in (5.0, 7.0, 20.0, 30.0, 3.0, -1.0):
+            pub.send({"data": value})
+        events = form.locator(".notify-events li")
+        expect(events).to_have_count(2)
+        expect(events.nth(0)).to_contain_text("left the range: -1")
+        expect(events.nth(1)).to_contain_text("left the range: 20")
+        form.locator("button[type=submit]").click()   # Stop: the trigger is deleted
+        poll_until(lambda: gw.get(f"/apps/ui_notify_probe/triggers/{trig}").status_code == 404, 10,
+                   message="the trigger deleted")
+    finally:
+        pub.stop()

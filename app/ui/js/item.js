@@ -12,6 +12,7 @@ import { describe, get, getToken } from "./api.js";
 import { fill, formatAge, h } from "./dom.js";
 import { IMAGE_TYPE, ImageCanvas } from "./image.js";
 import { JsonTree, numericValue, pathText, valueAt } from "./jsontree.js";
+import { NotifyForm } from "./notify.js"; // "notify me when…": a LeaveRange trigger
 import { TimePlot } from "./plot.js";
 import { PublishForm } from "./publish.js";
 import { Subscription } from "./stream.js";
@@ -104,6 +105,9 @@ export class ItemView {
         authentication: this.capabilities.authentication,
       });
     }
+    if (this.capabilities.triggers) { // "notify me when…" (notify.js)
+      this.notify = new NotifyForm(this.notifyEl, { entityPath: this.entityPath, resource: this.dataPath });
+    }
     document.addEventListener("visibilitychange", this.onVisibility);
     window.addEventListener("sovd-token", this.onToken);
     this.timers.push(setInterval(() => this._schedule(), 1000)); // the age goes on when frames stop
@@ -127,13 +131,14 @@ export class ItemView {
     this.plotEl = h("div", {});
     this.imageEl = h("div", { class: "image-box", hidden: true });
     this.publishEl = h("div", {});
+    this.notifyEl = h("div", {}); // "notify me when…" (notify.js)
     fill(this.container,
       h("div", { class: "item-head" }, this.title, this.typeEl),
       h("div", { class: "item-controls" }, h("span", { class: "muted" }, "under "),
         h("code", {}, this.entityPath.replace(/^\/api\/v1\//, "")), this.streamEl, this.streamDetail,
         this.intervalEl),
       this.notice, this.banner, this.metaEl, this.imageEl, this.plotEl,
-      h("h3", {}, "Value"), this.valueEl, this.publishEl);
+      h("h3", {}, "Value"), this.valueEl, this.notifyEl, this.publishEl);
     this.container.dataset.frames = "0";
   }
 
@@ -186,6 +191,7 @@ export class ItemView {
   }
 
   _pick(path) {
+    if (this.notify) this.notify.suggest(path);
     this.plot.toggle(pathText(path), path);
     this.tree.refreshPicks();
     this._schedule();
@@ -312,6 +318,7 @@ export class ItemView {
     document.removeEventListener("visibilitychange", this.onVisibility);
     window.removeEventListener("sovd-token", this.onToken);
     if (this.publish) this.publish.destroy();
+    if (this.notify) this.notify.destroy();
     const sub = this.sub;
     this.sub = null;
     return sub ? sub.close({ unloading }) : Promise.resolve();

@@ -1,6 +1,6 @@
 """A real rclpy node that writes log lines to /rosout when told (tests of the logs, the bench).
 
-``python -m tests.support.roslogger '{"node": "n", "namespace": "/"}'`` prints ``READY``,
+``python -m bench.roslogger '{"node": "n", "namespace": "/"}'`` prints ``READY``,
 then reads one JSON command per line on stdin and prints ``DONE <n>`` after each:
 
 - ``{"log": [["warning", "text"], ...]}``: one line each, at that level;
@@ -20,7 +20,7 @@ import sys
 import threading
 import time
 
-from .procs import REPO, Proc
+from tests.support.procs import REPO, Proc
 
 
 def main() -> int:
@@ -98,7 +98,7 @@ class LoggerNode(Proc):
         self.log_path = None
         self._log = None
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "tests.support.roslogger", json.dumps({"node": node, "namespace": namespace})],
+            [sys.executable, "-m", "bench.roslogger", json.dumps({"node": node, "namespace": namespace})],
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.PIPE, text=True,
             env=dict(os.environ), cwd=REPO, start_new_session=True)
         self._reader = threading.Thread(target=self._read, daemon=True)
