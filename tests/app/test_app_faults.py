@@ -40,7 +40,7 @@ def diag():
     def make(node: str, namespace: str = "/", rate: float = 10) -> DiagPub:
         pub = DiagPub(node, namespace, rate)
         started.append(pub)
-        return pub
+        return pub.matched()  # the gateway is there: no report is lost to discovery
 
     yield make
     for pub in started:
