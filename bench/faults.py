@@ -18,8 +18,8 @@ import time
 import psutil
 import requests
 
+from bench.diagpub import DiagPub
 from bench.procs import measure_cpu
-from tests.support.diagpub import DiagPub
 from tests.support.gateway import Gateway
 from tests.support.procs import Proc, poll_until, private_ros_domain
 

@@ -11,7 +11,7 @@ import threading
 import pytest
 import requests
 
-from tests.support.diagpub import DiagPub
+from bench.diagpub import DiagPub
 from tests.support.gateway import Gateway
 from tests.support.procs import poll_until
 

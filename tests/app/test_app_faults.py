@@ -16,7 +16,7 @@ import requests
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from tests.support.diagpub import DiagPub
+from bench.diagpub import DiagPub
 from tests.support.gateway import BIN, Gateway
 from tests.support.procs import poll_until, publisher
 

@@ -1,6 +1,6 @@
 """A real ROS 2 node in its own process that publishes ``/diagnostics``, steered through a file.
 
-Run as ``python -m tests.support.diagpub '<json spec>'``::
+Run as ``python -m bench.diagpub '<json spec>'``::
 
     {"node": "battery_driver", "namespace": "/", "control": "/tmp/x.json", "rate": 10}
 
@@ -91,13 +91,13 @@ class DiagPub:
     """The node above, from a test: ``set(statuses)`` and wait until it applied them."""
 
     def __init__(self, node: str, namespace: str = "/", rate: float = 10, timeout: float = 20.0):
-        from .procs import Proc
+        from tests.support.procs import Proc
 
         self.dir = tempfile.mkdtemp(prefix="diagpub-")
         self.control = os.path.join(self.dir, "control.json")
         self.seq = 0
         spec = {"node": node, "namespace": namespace, "control": self.control, "rate": rate}
-        self.proc = Proc([sys.executable, "-m", "tests.support.diagpub", json.dumps(spec)], name=f"diagpub {node}")
+        self.proc = Proc([sys.executable, "-m", "bench.diagpub", json.dumps(spec)], name=f"diagpub {node}")
         self.proc.wait_line(lambda line: line == "READY", timeout)
 
     def matched(self, timeout: float = 20.0) -> DiagPub:
