@@ -2,9 +2,10 @@
 
 One subscription to ``/diagnostics`` (``diagnostic_msgs/msg/DiagnosticArray``,
 reliable, depth ``DEPTH``), no callback: a timer on the ROS thread takes at
-most ``TAKE_PER_ROUND`` arrays every ``TAKE_EVERY`` s, so a flood of arrays
-costs bounded time per round (the rest wait in the subscription's queue,
-whose depth bounds them too).
+most ``TAKE_PER_ROUND`` arrays or ``STATUSES_PER_ROUND`` statuses every
+``TAKE_EVERY`` s, so a flood of arrays costs bounded time per round and the
+commands queued meanwhile are answered between rounds (the rest wait in the
+subscription's queue, whose depth bounds them: the oldest are dropped).
 
 The mapping is medkit's diagnostic bridge's:
 
@@ -65,11 +66,14 @@ TOPIC = "/diagnostics"
 TYPE = "diagnostic_msgs/msg/DiagnosticArray"
 DEPTH = 100                # arrays the subscription holds between two takes
 TAKE_EVERY = 0.05          # seconds between two takes
-TAKE_PER_ROUND = 50        # arrays taken per round at most
+TAKE_PER_ROUND = 20        # arrays taken per round at most ...
+STATUSES_PER_ROUND = 500   # ... and statuses: a round stays short (tens of ms) whatever is sent; past
+                           # that the subscription's queue (DEPTH) drops the oldest arrays
 STATUSES_PER_ARRAY = 1000  # statuses of one array looked at, at most
 TICK_EVERY = 0.1           # seconds between checks of the timers (confirm by time, stale)
 PERSIST_EVERY = 1.0        # seconds between writes of a fault whose status did not change
 PUBLISHERS_TTL = 1.0       # seconds the publishers of /diagnostics are cached
+GRAPH_RETRY = 0.1          # seconds between two direct graph queries for a status's unknown node
 CODE_MAX = 256
 SOURCES_MAX = 16           # reporting sources kept per fault
 VALUES_MAX = 64            # key/value pairs of a status kept for its freeze frame
@@ -163,6 +167,8 @@ class FaultManager:
         self._code_cache: dict[str, str] = {}
         self._publishers: tuple[float, list[str]] = (0.0, [])
         self._refused_logged = -REFUSED_LOG_EVERY
+        self._graph_asked = -GRAPH_RETRY
+        self._fresh_nodes: list[str] = []
         self.sub = None
         self.cls = None
         self.arrays = 0
@@ -209,12 +215,16 @@ class FaultManager:
         self.executor.call_later(TAKE_EVERY, self._take_round)
         if self.sub is None:
             return
+        statuses = 0
         for _ in range(TAKE_PER_ROUND):
             taken = self.sub.handle.take_message(self.cls, False)
             if taken is None:
                 break
             self.arrays += 1
+            statuses += len(taken[0].status)
             self.executor.guarded("a /diagnostics array", self.on_array, taken[0])
+            if statuses >= STATUSES_PER_ROUND:
+                break
 
     def _tick_round(self) -> None:
         self.executor.call_later(TICK_EVERY, self._tick_round)
@@ -274,15 +284,29 @@ class FaultManager:
         if "/" in hardware_id:
             return hardware_id[:CODE_MAX]
         prefix, sep, _ = status.name.partition(":")
-        nodes = list(self.graph.nodes) if self.graph is not None else []
         if sep and prefix.strip():
-            matches = [n for n in nodes if n.rsplit("/", 1)[-1] == prefix.strip()]
+            matches = self._nodes_named(prefix.strip())
             if len(matches) == 1:
                 return matches[0]
         publishers = self._diagnostics_publishers()
         if len(publishers) == 1:
             return publishers[0]
         return TOPIC
+
+    def _nodes_named(self, name: str) -> list[str]:
+        """The graph's nodes called ``name``; asked again (at most every GRAPH_RETRY s) on a miss,
+        since the graph monitor's last poll may predate a driver that just started."""
+        nodes = list(self.graph.nodes) if self.graph is not None else []
+        matches = [n for n in nodes if n.rsplit("/", 1)[-1] == name]
+        now = time.monotonic()
+        if not matches and self.node is not None and now - self._graph_asked >= GRAPH_RETRY:
+            self._graph_asked = now
+            self._publishers = (0.0, [])   # the publishers of /diagnostics are asked again too
+            fresh = [(ns.rstrip("/") + "/" + n) for n, ns in self.node.get_node_names_and_namespaces()]
+            self._fresh_nodes = fresh
+        if not matches:
+            matches = [n for n in self._fresh_nodes if n.rsplit("/", 1)[-1] == name]
+        return matches
 
     def _diagnostics_publishers(self) -> list[str]:
         when, names = self._publishers

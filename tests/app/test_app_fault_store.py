@@ -6,11 +6,12 @@ import os
 import signal
 import sqlite3
 import tempfile
+import threading
 
 import pytest
 import requests
 
-from tests.support.diagpub import DiagPub
+from bench.diagpub import DiagPub
 from tests.support.gateway import Gateway
 from tests.support.procs import poll_until
 
@@ -83,6 +84,7 @@ def test_faults_survive_a_gateway_restart(state_dir, diag):
 
 
 def test_a_sigkill_of_the_ros_worker_mid_burst_loses_no_confirmed_fault(state_dir, diag):
+    flipping = threading.Event()
     gw = Gateway(*FAST, "--state-dir", state_dir)
     try:
         steady = diag("kill_steady", rate=2)
@@ -92,15 +94,27 @@ def test_a_sigkill_of_the_ros_worker_mid_burst_loses_no_confirmed_fault(state_di
                    message="the steady faults confirmed")
         poll_until(lambda: written(gw), 10, message="written")
         steady.set([], publish=False)
-        # the burst: 200 statuses flipping between ERROR and OK at 50 Hz, so every round writes
+        # the burst: 200 statuses flipping between ERROR and OK (each flip: 200 faults confirmed or
+        # healed, so the store writes all the time), while the ROS worker is killed
         burst = diag("kill_burst", rate=50)
-        burst.set([{"name": f"kill burst {i}", "level": 2, "message": "x"} for i in range(200)])
+        flips = {"n": 0}
+
+        def flip() -> None:
+            while not flipping.is_set():
+                flips["n"] += 1
+                level = 2 if flips["n"] % 2 else 0
+                try:
+                    burst.set([{"name": f"kill burst {i}", "level": level, "message": "x"} for i in range(200)])
+                except AssertionError:
+                    return  # the test is over
         writes = gw.get("/health").json()["x-medkit-faults"]["store_writes"]
-        burst.set([{"name": f"kill burst {i}", "level": 0, "message": "x"} for i in range(200)])
-        poll_until(lambda: gw.get("/health").json()["x-medkit-faults"]["store_writes"] > writes + 2, 20,
+        flipper = threading.Thread(target=flip, daemon=True)
+        flipper.start()
+        poll_until(lambda: gw.get("/health").json()["x-medkit-faults"]["store_writes"] > writes + 3, 30,
                    message="the burst being written")
         old_pid = gw.rosworker_pid()
         os.kill(old_pid, signal.SIGKILL)
+        flips_at_kill = flips["n"]
         assert integrity(os.path.join(state_dir, "faults.db")) == "ok"
 
         def restarted() -> bool:
@@ -108,9 +122,12 @@ def test_a_sigkill_of_the_ros_worker_mid_burst_loses_no_confirmed_fault(state_di
             return health["x-medkit-subscription-executor"]["worker_alive"] and gw.rosworker_pid() != old_pid
 
         poll_until(restarted, 60, message="the ROS worker restarted")
+        poll_until(lambda: gw.get("/faults").status_code == 200, 30, message="faults served again")
         after = faults(gw)
         assert {c for c in codes if after.get(c, {}).get("status") == "CONFIRMED"} == codes
+        assert flips_at_kill >= 2  # the kill came mid-burst
     finally:
+        flipping.set()
         gw.stop()
     assert integrity(os.path.join(state_dir, "faults.db")) == "ok"
 

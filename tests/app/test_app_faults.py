@@ -16,7 +16,7 @@ import requests
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from tests.support.diagpub import DiagPub
+from bench.diagpub import DiagPub
 from tests.support.gateway import BIN, Gateway
 from tests.support.procs import poll_until, publisher
 
@@ -40,7 +40,7 @@ def diag():
     def make(node: str, namespace: str = "/", rate: float = 10) -> DiagPub:
         pub = DiagPub(node, namespace, rate)
         started.append(pub)
-        return pub
+        return pub.matched()  # the gateway is there: no report is lost to discovery
 
     yield make
     for pub in started:

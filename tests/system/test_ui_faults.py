@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
+from bench.diagpub import DiagPub
 from tests.support.browser import Watch, launch, require_chromium
-from tests.support.diagpub import DiagPub
 from tests.support.gateway import Gateway
 from tests.support.procs import poll_until
 

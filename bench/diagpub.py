@@ -1,6 +1,6 @@
 """A real ROS 2 node in its own process that publishes ``/diagnostics``, steered through a file.
 
-Run as ``python -m tests.support.diagpub '<json spec>'``::
+Run as ``python -m bench.diagpub '<json spec>'``::
 
     {"node": "battery_driver", "namespace": "/", "control": "/tmp/x.json", "rate": 10}
 
@@ -10,7 +10,8 @@ reads it whenever it changes (looked at every 20 ms), prints ``APPLIED <seq>``
 and then publishes one ``DiagnosticArray`` of those statuses ``rate`` times a
 second (``publish: false``: it stays in the graph but goes silent, as a hung
 driver does).  ``{"burst": n}`` publishes n arrays at once (then goes on as
-before).  Prints ``READY`` once its publisher exists.  Use :class:`DiagPub`.
+before).  Prints ``READY`` once its publisher exists, ``MATCHED`` once a subscriber (the
+gateway) is matched.  Use :class:`DiagPub`.
 """
 
 from __future__ import annotations
@@ -62,6 +63,9 @@ def main() -> None:
         print(f"APPLIED {state['seq']}", flush=True)
 
     def tick() -> None:
+        if not state.get("matched") and pub.get_subscription_count() > 0:
+            state["matched"] = True
+            print("MATCHED", flush=True)  # a subscriber (the gateway) gets what is published from now on
         look()
         now = node.get_clock().now().nanoseconds / 1e9
         if state["publish"] and now >= state["next"]:
@@ -87,14 +91,19 @@ class DiagPub:
     """The node above, from a test: ``set(statuses)`` and wait until it applied them."""
 
     def __init__(self, node: str, namespace: str = "/", rate: float = 10, timeout: float = 20.0):
-        from .procs import Proc
+        from tests.support.procs import Proc
 
         self.dir = tempfile.mkdtemp(prefix="diagpub-")
         self.control = os.path.join(self.dir, "control.json")
         self.seq = 0
         spec = {"node": node, "namespace": namespace, "control": self.control, "rate": rate}
-        self.proc = Proc([sys.executable, "-m", "tests.support.diagpub", json.dumps(spec)], name=f"diagpub {node}")
+        self.proc = Proc([sys.executable, "-m", "bench.diagpub", json.dumps(spec)], name=f"diagpub {node}")
         self.proc.wait_line(lambda line: line == "READY", timeout)
+
+    def matched(self, timeout: float = 20.0) -> DiagPub:
+        """Wait until a subscriber of /diagnostics (the gateway's) is matched: nothing published is lost."""
+        self.proc.wait_line(lambda line: line == "MATCHED", timeout)
+        return self
 
     def set(self, statuses: list[dict], publish: bool = True, rate: float | None = None, burst: int = 0,
             timeout: float = 10.0) -> None:
