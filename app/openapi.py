@@ -183,8 +183,15 @@ SCHEMAS: dict[str, Any] = {
     "CyclicSubscriptionCreateRequest": _obj(
         ["resource", "interval", "duration"],
         resource={**STR, "description": "/api/v1/{apps|components|functions}/{id}/data/{topic}, in any "
-                                        "spelling the data route accepts, with its query (?bytes=base64)",
-                  "examples": ["/api/v1/apps/temp_sensor/data/powertrain/engine/temperature"]},
+                                        "spelling the data route accepts, with its query (?bytes=base64); "
+                                        # feeds (app/feeds.py): executions and parameters
+                                        "or …/operations/{op_id}/executions/{exec_id} (the goal's status "
+                                        "and feedback; the stream ends after a last frame with the result); "
+                                        "or …/configurations/{param_id} (the parameter's value)",
+                  "examples": ["/api/v1/apps/temp_sensor/data/powertrain/engine/temperature",
+                               "/api/v1/apps/calibration/operations/long_calibration/executions/"
+                               "0123456789abcdef0123456789abcdef",
+                               "/api/v1/apps/temp_sensor/configurations/publish_rate"]},
         protocol={**STR, "default": "sse", "description": "only sse"}, interval=INTERVAL,
         duration={**INT, "minimum": 1, "description": "seconds, at most max_stream_duration (3600)"},
     ),
@@ -427,10 +434,14 @@ def _subscription_paths(collection: str) -> dict[str, Any]:
     sub_param = {"name": "subscription_id", "in": "path", "required": True, "schema": STR}
     params = [_id_param(collection)]
     not_found = ("404", "Unknown entity (`entity-not-found`) or subscription (`resource-not-found`, "
-                        "`Subscription not found`, parameters `subscription_id`)")
+                        "`Subscription not found`, parameters `subscription_id`); "
+                        # feeds (app/feeds.py): what a GET of the execution or parameter answers
+                        "on create, an unknown operation (`operation-not-found`), execution or parameter "
+                        "(`resource-not-found`)")
     bad = ("400", "A missing or invalid field (`invalid-parameter`), or a resource that is malformed, "
                   "traverses paths or is `data` without a topic (`x-medkit-invalid-resource-uri`), names "
-                  "another entity (`x-medkit-entity-mismatch`) or another collection than `data` "
+                  "another entity (`x-medkit-entity-mismatch`) or another collection than `data`, "
+                  "`operations/{op}/executions/{exec}` or `configurations/{param}` "
                   "(`x-medkit-collection-not-supported`), or a protocol other than sse "
                   "(`x-medkit-unsupported-protocol`)")
     # With an API token configured, what changes a subscription needs it (README, "who may do it").

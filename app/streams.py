@@ -64,7 +64,7 @@ from common.process import PerProcess
 from ipc import events, protocol
 from ipc.errors import IpcError
 
-from . import metrics, rosclient, samples
+from . import feeds, metrics, rosclient, samples
 
 log = logging.getLogger("sovd.http.streams")
 
@@ -103,6 +103,9 @@ def frame(stamp_ns: int, *, payload: bytes | None = None, error: bytes | None = 
 
 def error_frame(stream: Stream, exc: IpcError, stamp_ns: int | None = None) -> bytes:
     """The ``error`` frame of ``stream``: the error body a GET of its resource would answer."""
+    if stream.kind != "data":  # feeds: an execution's or a parameter's error body (app/feeds.py)
+        return frame(time.time_ns() if stamp_ns is None else stamp_ns,
+                     error=feeds.error(stream.kind, stream.entity_id, stream.target, exc))
     body = samples.error(exc, stream.entity_id, stream.topic, stream.topic, 0).to_dict()
     return frame(time.time_ns() if stamp_ns is None else stamp_ns, error=orjson.dumps(body))
 
@@ -143,6 +146,8 @@ class Stream:
         self.topic: str = sub["topic"]
         self.key: bytes = sub["key"]
         self.interval: str = sub["interval"]
+        self.kind: str = sub.get("kind") or "data"   # feeds: "execution" or "parameter" (app/feeds.py)
+        self.target: dict[str, Any] = sub.get("target") or {}
         self.expires = time.monotonic() + max(0.0, (sub["expires_at_ns"] - time.time_ns()) / 1e9)
         self.frames: collections.deque[bytes] = collections.deque()
         self.buffered = 0          # bytes in ``frames``
@@ -435,8 +440,14 @@ class StreamHub:
                 stream.push(made[0], made[1], now)
             else:
                 stream.push(made[0], None, now)
+            if meta.get("last"):  # feeds: a finished execution's last frame ends its streams
+                stream.end()
 
     def _chunk(self, stream: Stream, stamp: int, meta: dict[str, Any], data: bytes) -> bytes:
+        if stream.kind != "data":  # feeds: the body a GET of the execution or parameter answers
+            if "error" in meta:
+                return error_frame(stream, IpcError.from_wire(meta["error"]), stamp)
+            return frame(stamp, payload=feeds.payload(stream.kind, stream.entity_id, orjson.loads(data)))
         if "error" in meta:
             return error_frame(stream, IpcError.from_wire(meta["error"]), stamp)
         head, payload, tail = samples.body_parts(stream.topic, {**meta, "data_json": data}, stream.entity_id,

@@ -162,6 +162,16 @@ class Commands:
         mode = _string(task.args, "bytes", BYTES_MODES)
         # The client's address (the per-client cap); absent from an older HTTP side or a probe.
         client = _string(task.args, "client", limit=256) if task.args.get("client") is not None else ""
+        kind = task.args.get("kind", "data")  # feeds: an execution or a parameter (rosworker/feeds.py)
+        if kind != "data":
+            if self.streams.feeds is None:
+                raise IpcError("bad-request", "kind: this ROS worker streams topics only")
+            result = self.streams.create(collection, entity_id, _string(task.args, "resource"), "", mode,
+                                         _string(task.args, "interval", tuple(events.INTERVALS)),
+                                         self._duration(task.args), client, _string(task.args, "kind"),
+                                         task.args.get("target"))
+            self.streams.when_saved(lambda: task.reply(result))
+            return
         result = self.streams.create(collection, entity_id, _string(task.args, "resource"), _topic(task.args),
                                      mode, _string(task.args, "interval", tuple(events.INTERVALS)),
                                      self._duration(task.args), client)

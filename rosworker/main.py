@@ -277,6 +277,9 @@ class Worker:
         executor.serve({**commands.handlers, **parameters.handlers()})
         executor.add_poller("parameter clients", parameters.active, parameters.poll)
         every(min(cfg.idle_sweep_tick, 1.0), parameters.sweep_idle)
+        # feeds: cyclic subscriptions on executions and parameters (rosworker/feeds.py)
+        from .feeds import Feeds
+        streams.feeds = Feeds(streams, executor, operations.actions, parameters)
         if rewarm:
             self._rewarm(executor, pool, rewarm, time.monotonic() + REWARM_FOR)
         streams.restore(subscriptions)

@@ -339,6 +339,8 @@ class ParameterClients:
         self._unavailable: dict[str, float] = {}   # fqn -> monotonic time until which it is answered at once
         self._records: collections.OrderedDict[str, Record] = collections.OrderedDict()
         self._events = None
+        # cyclic subscriptions on parameters (rosworker/feeds.py): called with each /parameter_events message
+        self.listeners: list[Callable[[Any], None]] = []
         stats.parameter_client_cap = max_clients
 
     # ---- executor hooks -------------------------------------------------------------------
@@ -705,6 +707,10 @@ class ParameterClients:
         self.stats.parameter_calls_in_flight = len(self._ops)
 
     # ---- /parameter_events ---------------------------------------------------------------------
+    def drain_events(self) -> None:
+        """Take the /parameter_events messages that came (the parameter feeds' ticks)."""
+        self._drain_events()
+
     def _drain_events(self) -> None:
         """Parameters declared since: they join their node's record with the value they were declared with."""
         if self._events is None:
@@ -716,6 +722,8 @@ class ParameterClients:
                 return
             event = taken[0]
             self.stats.parameter_events += 1
+            for listener in self.listeners:  # cyclic subscriptions on parameters (rosworker/feeds.py)
+                listener(event)
             record = self._records.get(event.node)
             if record is None or not event.new_parameters:
                 continue

@@ -129,6 +129,9 @@ class Subscription:
     duration: int
     created_at_ns: int
     client: str = ""        # the client address that made it ("" when the HTTP side did not say)
+    # feeds (rosworker/feeds.py): "data" (a topic), "execution" or "parameter", and what it names
+    kind: str = "data"
+    target: dict[str, Any] = field(default_factory=dict)
     deadline: float = field(default=0.0, compare=False)  # time.monotonic() at which it expires
 
     @property
@@ -151,6 +154,8 @@ class Subscription:
 
     @property
     def key(self) -> bytes:
+        if self.kind != "data":  # a feed's frames are its own (rosworker/feeds.py)
+            return events.data_key(self.interval, self.kind, self.id)
         return events.data_key(self.interval, self.bytes, self.topic)
 
 
@@ -201,6 +206,7 @@ class StreamRegistry:
         self.max_duration = max_duration
         self.sample_timeout = sample_timeout
         self.subs: dict[str, Subscription] = {}
+        self.feeds: Any = None  # executions' and parameters' subscriptions (rosworker/feeds.py), set by main
         self._records: dict[str, bytes] = {}  # id -> Subscription.record(), made when it changes
         self.version = 0                      # bumped at each change of the registry
         self.per_client: dict[str, int] = {}
@@ -240,6 +246,8 @@ class StreamRegistry:
             if not isinstance(expires_at_ns, int) or isinstance(expires_at_ns, bool):
                 continue
             sub.deadline = (expires_at_ns - offset) / 1e9  # the wall clock is the one both workers share
+            if sub.kind != "data" and self.feeds is None:  # feeds (rosworker/feeds.py) not served here
+                continue
             if sub.deadline > time.monotonic() and sub.interval in events.INTERVALS \
                     and len(self.subs) < self.max_subscriptions and self._held_by(sub.client) < self.max_per_client:
                 self._add(sub)
@@ -281,7 +289,8 @@ class StreamRegistry:
 
     # ---- commands ---------------------------------------------------------------------------
     def create(self, collection: str, entity_id: str, resource: str, topic: str, mode: str, interval: str,
-               duration: int, client: str = "") -> dict[str, Any]:
+               duration: int, client: str = "", kind: str = "data",
+               target: dict[str, Any] | None = None) -> dict[str, Any]:
         if len(self.subs) >= self.max_subscriptions:
             raise IpcError("subscriptions-full",
                            f"The gateway already holds {self.max_subscriptions} cyclic subscriptions "
@@ -294,7 +303,10 @@ class StreamRegistry:
                            {"max_subscriptions_per_client": self.max_per_client})
         sub = Subscription(id="sub_" + secrets.token_hex(8), collection=collection, entity_id=entity_id,
                            resource=resource, topic=topic, bytes=mode, interval=interval, duration=duration,
-                           created_at_ns=time.time_ns(), client=client, deadline=time.monotonic() + duration)
+                           created_at_ns=time.time_ns(), client=client, deadline=time.monotonic() + duration,
+                           kind=kind, target=target or {})
+        if kind != "data":
+            self.feeds.check(sub)  # the execution or parameter it names exists (else IpcError)
         self._add(sub)
         self.stats.subscriptions_created += 1
         self._save()
@@ -330,6 +342,15 @@ class StreamRegistry:
 
     def delete(self, collection: str, entity_id: str, sub_id: str) -> None:
         self._remove(self.get(collection, entity_id, sub_id), "deleted")
+
+    def end(self, sub: Subscription) -> None:
+        """A feed's subscription whose resource finished (rosworker/feeds.py): it ends as an expiry does."""
+        if self.subs.get(sub.id) is sub:
+            self._remove(sub, "expired")
+
+    def publish(self, key: bytes, meta: dict[str, Any], data: bytes = b"{}") -> None:
+        """One frame on the events channel (the feeds' ticks)."""
+        self._publish(key, meta, data)
 
     # ---- registry -------------------------------------------------------------------------
     def _held_by(self, client: str) -> int:
@@ -381,6 +402,9 @@ class StreamRegistry:
         self._remove(sub, "expired")
 
     def _watch(self, sub: Subscription) -> None:
+        if sub.kind != "data":
+            self.feeds.watch(sub)
+            return
         watches = self.watches[sub.interval]
         watch = watches.get((sub.topic, sub.bytes))
         if watch is None:
@@ -390,6 +414,9 @@ class StreamRegistry:
         watch.count += 1
 
     def _unwatch(self, sub: Subscription) -> None:
+        if sub.kind != "data":
+            self.feeds.unwatch(sub)
+            return
         watches = self.watches[sub.interval]
         watch = watches.get((sub.topic, sub.bytes))
         if watch is not None:

@@ -20,7 +20,7 @@ from ipc.events import INTERVALS
 from ipc.protocol import BYTES_MODES
 from ipc.topics import InvalidTopic, normalize_topic
 
-from .. import rosclient, streams
+from .. import feeds, rosclient, streams
 from ..entities import API_BASE
 from ..errors import ApiError
 from .auth import authorize_change
@@ -79,8 +79,10 @@ def _duration(body: dict[str, Any], required: bool) -> int | None:
     return value
 
 
-def parse_resource(resource: Any, collection: str, entity_id: str) -> tuple[str, str]:
-    """``(topic, bytes mode)`` of a resource URI that names ``data/{topic}`` of this entity."""
+def parse_resource(resource: Any, collection: str, entity_id: str,
+                   others: tuple[str, ...] = ()) -> tuple[str, str]:
+    """``(topic, bytes mode)`` of a resource URI that names ``data/{topic}`` of this entity; for a
+    collection in ``others``, ``(collection, the rest of the path, still percent-encoded)``."""
     if resource is None:
         raise _bad("resource: missing required field", "resource", None)
     if not isinstance(resource, str) or not resource or len(resource) > MAX_RESOURCE_LENGTH:
@@ -111,6 +113,8 @@ def parse_resource(resource: Any, collection: str, entity_id: str) -> tuple[str,
     if kind != collection or rid != entity_id:
         raise _vendor("x-medkit-entity-mismatch", "Resource URI must reference the same entity as the route",
                       {"parameter": "resource", "value": resource[:300]})
+    if what in others:  # feeds: executions and parameters (app/feeds.py)
+        return what, rest
     if what != "data":
         raise _vendor("x-medkit-collection-not-supported",
                       f"Collection '{unquote(what)[:100]}' not supported for {collection}",
@@ -174,7 +178,14 @@ def create(collection: str, entity_id: str):
                       {"parameter": "protocol", "value": str(protocol)[:100]})
     interval = _interval(body, required=True)
     duration = _duration(body, required=True)
-    topic, mode = parse_resource(body.get("resource"), collection, entity.id)
+    topic, mode = parse_resource(body.get("resource"), collection, entity.id, feeds.COLLECTIONS)
+    if topic in feeds.COLLECTIONS:  # feeds: an execution or a parameter (app/feeds.py)
+        kind, target = feeds.target(topic, mode, entity, body["resource"])
+        sub = _call("sub_create", {"collection": collection, "entity_id": entity.id, "resource": body["resource"],
+                                   "bytes": "array", "interval": interval, "duration": duration,
+                                   "client": _client(), "kind": kind, "target": target})
+        answer = public(sub)
+        return json_response(answer, 201, headers={"Location": answer["event_source"].removesuffix("/events")})
     sub = _call("sub_create", {"collection": collection, "entity_id": entity.id, "resource": body["resource"],
                                "topic": topic, "bytes": mode, "interval": interval, "duration": duration,
                                "client": _client()})
