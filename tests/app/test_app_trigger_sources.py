@@ -11,6 +11,10 @@ apply to these collections are refused before anything is made.
 
 from __future__ import annotations
 
+import os
+import shutil
+import signal
+import tempfile
 import uuid
 
 import pytest
@@ -195,3 +199,43 @@ def test_refusals_entity_mismatch_and_conditions_that_cannot_apply(gw):
                                timeout=10).status_code == 204
     finally:
         logger.stop()
+
+
+# ---- restarts -----------------------------------------------------------------------------------------
+def test_faults_and_logs_triggers_survive_a_ros_worker_sigkill_and_fire_after_it():
+    runtime_dir = tempfile.mkdtemp(prefix="sovd-trigsrc-")
+    os.chmod(runtime_dir, 0o700)
+    gateway = Gateway("--workers", "1", "--log-level", "warning", "--fault-confirm-count", "2",
+                      runtime_dir=runtime_dir)
+    node = f"trgk_{tag()}"
+    logger = pub = None
+    try:
+        logger, pub = LoggerNode(node), DiagPub(node, rate=10)
+        app_shows(gateway, node)
+        logs = create(gateway, node, f"/api/v1/apps/{node}/logs",
+                      {"condition_type": "OnChangeTo", "target_value": "after restart"}, path="/message",
+                      multishot=True, persistent=True)
+        faults = create(gateway, node, f"/api/v1/apps/{node}/faults",
+                        {"condition_type": "OnChangeTo", "target_value": "CONFIRMED"}, path="/status",
+                        persistent=True)
+        assert logs.status_code == 201 and faults.status_code == 201, (logs.text, faults.text)
+        logger.log(("info", "before the restart"))
+        old = gateway.rosworker_pid()
+        os.kill(old, signal.SIGKILL)
+        poll_until(lambda: gateway.rosworker_pid() != old and gateway.get("/health").json()[
+            "x-medkit-subscription-executor"]["worker_alive"], 30, message="the ROS worker restarted")
+        listed = {t["id"]: t for t in gateway.get(f"/apps/{node}/triggers").json()["items"]}
+        assert set(listed) == {logs.json()["id"], faults.json()["id"]}
+        assert all(t["status"] == "active" for t in listed.values())
+        with stream(gateway, logs.json()) as lines, stream(gateway, faults.json()) as confirmed:
+            poll_until(lambda: (logger.log(("info", "after restart")) or True) and lines.collect(0.3), 20,
+                       message="a line after the restart fired the restored logs trigger")
+            pub.set([failing(f"{node}: after {tag()}")])
+            event = confirmed.next(timeout=15)
+            assert event["payload"]["status"] == "CONFIRMED" and event["payload"]["event_type"] == "fault_confirmed"
+    finally:
+        for proc in (logger, pub):
+            if proc is not None:
+                proc.stop()
+        gateway.stop()
+        shutil.rmtree(runtime_dir, ignore_errors=True)
