@@ -513,12 +513,15 @@ SCHEMAS.update({
         observed_resource=STR, event_source=STR, protocol={"const": "sse"}, trigger_condition=_CONDITION,
         multishot={"type": "boolean"}, persistent={"type": "boolean"},
         lifetime={**INT, "minimum": 1, "description": "seconds (from creation, or from the last PUT)"},
-        path={**STR, "description": "JSON Pointer into the message"}),
+        path={**STR, "description": "JSON Pointer into the payload (the message, fault event or log entry)"}),
     "TriggerList": _obj(["items"], items={"type": "array", "items": ref("Trigger")}),
     "TriggerCreateRequest": _obj(
         ["resource", "trigger_condition"],
-        resource={**STR, "description": "/api/v1/{apps|components|functions}/{id}/data/{topic}",
-                  "examples": ["/api/v1/apps/temp_sensor/data/powertrain/engine/temperature"]},
+        resource={**STR, "description": "/api/v1/{apps|components|functions}/{id}/data/{topic}, "
+                                        "…/{id}/faults, …/{id}/faults/{fault_code} or …/{id}/logs (faults and "
+                                        "logs in the entity's scope, as its /faults and /logs routes have it)",
+                  "examples": ["/api/v1/apps/temp_sensor/data/powertrain/engine/temperature",
+                               "/api/v1/apps/temp_sensor/faults", "/api/v1/apps/temp_sensor/logs"]},
         trigger_condition=_CONDITION, path={**STR, "maxLength": 1024, "description": "JSON Pointer (RFC 6901)"},
         protocol={**STR, "default": "sse"}, multishot={"type": "boolean", "default": False},
         persistent={"type": "boolean", "default": False, "description": "kept across gateway restarts"},
@@ -536,7 +539,8 @@ def _trigger_paths(collection: str) -> dict[str, Any]:
     not_found = ("404", "Unknown entity (`entity-not-found`) or trigger (`resource-not-found`, `Trigger not "
                         "found`, parameters `trigger_id`)")
     bad = ("400", "A missing or invalid field, condition, JSON Pointer or lifetime, an unknown or not "
-                  "observable collection (`invalid-parameter`, parameters `parameter`), a malformed resource "
+                  "observable collection, a range condition without `path` on faults or logs "
+                  "(`invalid-parameter`, parameters `parameter`), a malformed resource "
                   "(`x-medkit-invalid-resource-uri`) or one of another entity (`x-medkit-entity-mismatch`)")
     unauthorized = ("401", "An API token is configured and the request has none (`unauthorized`)")
     forbidden = ("403", "An API token is configured and the request's is wrong (`forbidden`)")
@@ -545,8 +549,8 @@ def _trigger_paths(collection: str) -> dict[str, Any]:
                    "(`service-unavailable`), or the ROS worker is away; retry after `Retry-After` seconds")
     created = {"description": "Created", "headers": {"Location": {"schema": STR}},
                "content": {"application/json": {"schema": ref("Trigger")}}}
-    create = _op(f"create{title}Trigger", "Triggers", f"Watch a data item of a {collection[:-1]} for a "
-                 "condition (events over SSE)", None, bad, unauthorized, forbidden, not_found, *BODY_ERRORS,
+    create = _op(f"create{title}Trigger", "Triggers", f"Watch a data item, the faults or the logs of a "
+                 f"{collection[:-1]} for a condition (events over SSE)", None, bad, unauthorized, forbidden, not_found, *BODY_ERRORS,
                  full, "504", **token, parameters=params, requestBody={"required": True, "content": {
                      "application/json": {"schema": ref("TriggerCreateRequest")}}})
     create["responses"] = {"201": created, **create["responses"]}
@@ -554,7 +558,8 @@ def _trigger_paths(collection: str) -> dict[str, Any]:
                  None, unauthorized, forbidden, not_found, "503", "504", **token, parameters=params + [trig_param])
     delete["responses"] = {"204": {"description": "Deleted"}, **delete["responses"]}
     events = {"description": "text/event-stream: `data: {\"timestamp\", \"payload\"}` each time the "
-                             "condition fires, payload being the message; `{\"timestamp\", \"error\"}` when "
+                             "condition fires, payload being the message (data), the fault plus `event_type` "
+                             "(faults) or the log entry (logs); `{\"timestamp\", \"error\"}` when "
                              "a message cannot be read; `:` keep-alives every 15 s",
               "content": {"text/event-stream": {"schema": STR}}}
     return {

@@ -173,6 +173,8 @@ class FaultManager:
         self.cls = None
         self.arrays = 0
         self.refused = 0
+        # faults triggers: set by rosworker/triggersources.py while a trigger watches faults, else None
+        self.trigger_hook: Callable[[str, dict[str, Any]], None] | None = None
         self._publish_stats()
 
     # ---- set-up (ROS thread, before the loop) -------------------------------------------------------
@@ -461,6 +463,9 @@ class FaultManager:
         self.events.append((event_id, event))
         self.store.event(event_id, event)
         self.send([channel.FAULT_KEY, protocol.pack({"id": event_id, **event})])
+        hook = self.trigger_hook  # faults triggers: evaluated on the event, nothing when none watches
+        if hook is not None:
+            self.executor.guarded("the faults triggers", hook, event_type, event["fault"])
 
     def _write(self, code: str, changed: bool = True) -> None:
         self._unwritten.discard(code)

@@ -138,6 +138,8 @@ class LogBook:
         self.configs: dict[str, dict[str, Any]] = {}
         self.sub = None
         self._cls = None
+        # logs triggers: set by rosworker/triggersources.py while a trigger watches logs, else None
+        self.trigger_hook: Callable[[Entry], None] | None = None
         stats.logs_buffer_size = buffer_size
         stats.logs_max_bytes = max_bytes
         stats.logs_max_nodes = max_nodes
@@ -235,6 +237,9 @@ class LogBook:
             self._order = collections.deque(e for e in self._order if e.live)
         self.stats.logs_buffered = self._live
         self.stats.logs_bytes = self.nbytes
+        hook = self.trigger_hook  # logs triggers: evaluated on the line, nothing when none watches
+        if hook is not None:
+            self.executor.guarded("the logs triggers", hook, entry)
 
     def _retire(self, entry: Entry) -> None:
         entry.live = False

@@ -250,6 +250,8 @@ class Worker:
         triggers = TriggerRegistry(node, executor, stats, endpoints, events_sender(streams),
                                    max_triggers=cfg.max_triggers, max_per_client=cfg.max_triggers_per_client,
                                    store_path=store_path(cfg.trigger_store, cfg.runtime_dir))
+        triggers.sources["faults"].bind(faults)  # faults and logs triggers (rosworker/triggersources.py)
+        triggers.sources["logs"].bind(logbook)
         triggers.restore(restart=bool(self.restart))
         commands.handlers.update(triggers.handlers)
         executor.serve(commands.handlers)

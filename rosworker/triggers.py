@@ -88,6 +88,7 @@ ERROR_EVERY = 1.0         # seconds between two error events of one topic (undec
 SAVE_WAIT = 1.0
 MAX_LIFETIME = 2**31 - 1
 FILE_NAME = "triggers.json"
+TARGET_MAX = 256 * 1024  # characters of a faults or logs trigger's target (the entity's node names, JSON)
 
 
 # ---- conditions -----------------------------------------------------------------------------------
@@ -480,6 +481,9 @@ class TriggerRegistry:
                 fields["condition"] = check_condition(fields["condition"])
                 if not _valid_record(fields):
                     continue
+                check = getattr(self.sources[fields["source"]], "check_target", None)  # faults and logs
+                if check is not None:
+                    check(fields["target"])
                 trigger = Trigger(**fields)
             except (KeyError, TypeError, ValueError, IpcError):
                 continue
@@ -530,14 +534,17 @@ class TriggerRegistry:
         if source not in self.sources:
             raise IpcError("bad-request", "source: expected one of " + ", ".join(self.sources))
         strings = {}
-        for name, limit in (("collection", 64), ("entity_id", 256), ("resource", 4096), ("target", 4096),
-                            ("bytes", 16)):
+        for name, limit in (("collection", 64), ("entity_id", 256), ("resource", 4096),
+                            ("target", 4096 if source == "data" else TARGET_MAX), ("bytes", 16)):
             value = args.get(name)
             if not isinstance(value, str) or not value or len(value) > limit:
                 raise IpcError("bad-request", f"{name}: expected a string of 1 to {limit} characters")
             strings[name] = value
         if strings["bytes"] not in protocol.BYTES_MODES:
             raise IpcError("bad-request", "bytes: expected 'array' or 'base64'")
+        check = getattr(self.sources[source], "check_target", None)  # faults and logs: the entity's scope
+        if check is not None:
+            check(strings["target"])
         if source == "data":
             try:
                 strings["target"] = normalize_topic(strings["target"])
@@ -724,3 +731,9 @@ def events_sender(streams) -> Callable[[list[bytes]], None]:
         except zmq.ZMQError:
             pass
     return send
+
+
+# faults and logs triggers: two more observable kinds, event-driven (rosworker/triggersources.py)
+from .triggersources import FaultSource, LogSource  # noqa: E402  (it imports this module's names lazily)
+
+SOURCES.update(faults=FaultSource, logs=LogSource)

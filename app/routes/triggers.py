@@ -9,9 +9,10 @@ commands, ``rosworker/triggers.py``), so one made through one HTTP worker is
 streamed through any other.  Writes ask :func:`authorize_change`, like the
 cyclic subscriptions' (the bearer token when one is set).
 
-Observable resources: the collections of :data:`OBSERVABLE` (``data``
-today); medkit's other collections (faults, operations, updates, logs) are
-refused as not observable on this gateway yet.
+Observable resources: the collections of :data:`OBSERVABLE`: ``data``, and
+``faults`` (``…/faults``, ``…/faults/{code}``) and ``logs`` in the entity's
+scope (``app/triggerscopes.py``); medkit's other collections (operations,
+updates) are refused as not observable on this gateway yet.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from flask import Blueprint, current_app, request
 from ipc import jsonpointer
 from ipc.errors import IpcError
 
-from .. import rosclient, triggerstreams
+from .. import rosclient, triggerscopes, triggerstreams
 from ..entities import API_BASE
 from ..errors import ApiError
 from .auth import authorize_change
@@ -42,7 +43,7 @@ MAX_LIFETIME = 2**31 - 1
 _TRIGGER_ID = re.compile(r"^trig_[0-9a-f]{16}$")
 _COLLECTION = re.compile(r"^/api/v1/[^/?#]+/[^/?#]+/([^/?#]+)")
 # Collections a trigger may observe here -> the ROS worker's source kind (rosworker/triggers.py SOURCES).
-OBSERVABLE = {"data": "data"}
+OBSERVABLE = {"data": "data", "faults": "faults", "logs": "logs"}  # faults and logs: app/triggerscopes.py
 MEDKIT_COLLECTIONS = ("data", "faults", "operations", "updates", "logs")
 
 
@@ -132,6 +133,9 @@ def _source(resource: Any, collection: str, entity_id: str) -> tuple[str, str, s
             raise ApiError(400, "invalid-parameter",
                            "Unknown collection. Supported: data, faults, operations, updates, logs, "
                            "or x-* vendor extensions", {"parameter": "resource", "collection": name})
+        if match and match.group(1) in triggerscopes.COLLECTIONS:  # faults and logs: resolved once path is read
+            parse_resource_entity(resource, collection, entity_id)
+            return match.group(1), "", ""
     topic, mode = parse_resource(resource, collection, entity_id)
     return "data", topic, mode
 
@@ -186,6 +190,8 @@ def create(collection: str, entity_id: str):
     condition = _condition(body)
     source, target, mode = _source(body.get("resource"), collection, entity.id)
     path = _path(body)
+    if source in triggerscopes.COLLECTIONS:  # faults and logs: the entity's scope, the condition's fit
+        source, target, mode = triggerscopes.resolve(body["resource"], entity, condition, path)
     protocol = body.get("protocol", "sse")
     if protocol != "sse":
         raise _bad("Unsupported protocol. Supported: 'sse'", "protocol", protocol)

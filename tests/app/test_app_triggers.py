@@ -97,7 +97,7 @@ def test_each_condition_keeps_its_own_fields_only(client, fw):
     ({"path": 7}, "Invalid JSON Pointer in 'path'"),
     ({"path": "/" + "a" * 1024}, "Path too long (max 1024)"),
     ({"resource": ...}, "resource: missing required field"),
-    ({"resource": "/api/v1/apps/temp_sensor/faults"}, None),
+    ({"resource": "/api/v1/apps/temp_sensor/operations"}, None),
     ({"resource": "/api/v1/apps/temp_sensor/bogus"}, None),
 ])
 def test_bad_fields_are_invalid_parameter(client, fw, changes, message):
