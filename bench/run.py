@@ -229,6 +229,9 @@ class Bench:
         # logs (issue 22): /rosout at 1 kHz vs its DDS floor (bench/logs.py)
         from . import logs as rosout_logs
         cases["rosout"] = lambda: rosout_logs.case_rosout(self)
+        # faults (issue 22): /diagnostics at 10 Hz × 50 statuses vs its DDS floor, and the confirm latency
+        from . import faults as fault_bench
+        cases["faults"] = lambda: fault_bench.case(self)
         only = set(self.args.only.split(",")) if self.args.only else set(cases)
         if "old" in only:
             only.add("warm")  # the old design is compared with the warm sample
@@ -680,7 +683,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="extra sovd-gateway flags, e.g. '--workers 3' (recorded in the JSON)")
     parser.add_argument("--rounds", type=int, help="floor/warm rounds (default 3, quick 1)")
     parser.add_argument("--only", metavar="CASES", help="comma-separated subset of: warm (floor, warm "
-                        "sample and echo route), old, memory, image, cold, idle, streams, stream_image, sub_costs, operations (for "
+                        "sample and echo route), old, memory, image, cold, idle, streams, stream_image, sub_costs, operations, params, rosout, faults (for "
                         "development; the table is "
                         "partial)")
     args = parser.parse_args(argv)

@@ -11,7 +11,7 @@ import re
 import jsonschema
 import pytest
 
-from app import openapi
+from app import faultstream, openapi
 from app.entities import RELATIONS
 from app.routes import unimplemented
 from ipc.errors import IpcError
@@ -114,6 +114,14 @@ def test_names_generated_clients_see_are_medkits(doc):
     assert ops["GET /apps/{app_id}/data/{data_id}"] == ("getAppDataItem", ["Data"])
     assert ops["PUT /components/{component_id}/data/{data_id}"] == ("putComponentDataItem", ["Data"])
     assert ops["GET /health"] == ("getHealth", ["Server"])
+    # faults (issue 22): medkit's names (ros2_medkit_clients spec/openapi.yaml)
+    assert ops["GET /faults"] == ("listAllFaults", ["Faults"]) and ops["DELETE /faults"][0] == "clearAllFaults"
+    assert ops["GET /faults/stream"] == ("streamFaults", ["Faults"])
+    assert ops["GET /apps/{app_id}/faults"][0] == "listAppFaults"
+    assert ops["DELETE /components/{component_id}/faults"][0] == "clearAllComponentFaults"
+    assert ops["GET /functions/{function_id}/faults/{fault_code}"][0] == "getFunctionFault"
+    assert ops["DELETE /apps/{app_id}/faults/{fault_code}"][0] == "clearAppFault"
+    assert {"FaultList", "FaultListItem", "FaultDetail"} <= set(doc["components"]["schemas"])
     assert len({op_id for op_id, _ in ops.values()}) == len(ops)  # operationIds are unique
     # Every error response is the one GenericError response.
     for path in doc["paths"].values():
@@ -131,7 +139,7 @@ def test_every_route_answers_per_the_document(doc):
             "/powertrain/engine/temperature", "sensor_msgs/msg/Temperature", {"temperature": 93.5})
         fw.type_infos["sensor_msgs/msg/Temperature"] = {"schema": {"type": "object"},
                                                         "default_value": {"temperature": 0.0}}
-        client = make_app(fw, allow_publish=True, allow_configurations=True, api_token=TOKEN,
+        client = make_app(fw, allow_publish=True, allow_configurations=True, allow_fault_clear=True, api_token=TOKEN,
                           max_body_bytes=1024).test_client()
         auth = {"Authorization": f"Bearer {TOKEN}"}
         requests: list[tuple[str, str, dict]] = [
@@ -224,6 +232,54 @@ def test_every_route_answers_per_the_document(doc):
                 r = client.open(path, method=method, **kw)
                 check(doc, method, path, r)
                 seen.setdefault(operation(doc, method, path)[0], set()).add(r.status_code)
+        # faults (issue 22): app/routes/faults.py, over the ROS worker's answers (rosworker/faults.py::public)
+        fault = {"fault_code": "TEMP_SENSOR_HOT", "severity": 2, "severity_label": "ERROR", "description": "hot",
+                 "first_occurred": 1700000000.5, "last_occurred": 1700000001.5, "occurrence_count": 1,
+                 "status": "CONFIRMED", "reporting_sources": ["/powertrain/engine/temp_sensor"]}
+        frame = {"type": "freeze_frame", "name": "temp_sensor: hot", "topic": "", "message_type": "",
+                 "captured_at_ns": 1700000001000000000, "data": '{"celsius": "93.5"}'}
+        fw.replies = {
+            "fault_list": {"items": [fault, {**fault, "fault_code": "ELSEWHERE", "reporting_sources": ["/other"]}]},
+            "fault_get": lambda args: (IpcError("no-such-fault", "Fault not found", {"fault_code": args["code"]})
+                                       if args["code"] != fault["fault_code"] else
+                                       {"fault": fault, "snapshots": [frame], "first_ns": 1700000000500000000,
+                                        "last_ns": 1700000001500000000}),
+            "fault_clear": {"cleared": [fault["fault_code"]]},
+        }
+        wrong = {"Authorization": "Bearer wrong"}
+        faults = [("GET", "/api/v1/faults", {}), ("GET", "/api/v1/faults?status=all", {}),
+                  ("GET", "/api/v1/faults?status=loud", {}), ("DELETE", "/api/v1/faults", {"headers": auth}),
+                  ("DELETE", "/api/v1/faults?status=loud", {"headers": auth}), ("DELETE", "/api/v1/faults", {}),
+                  ("DELETE", "/api/v1/faults", {"headers": wrong})]
+        for collection in ("apps", "components", "functions"):
+            base = f"/api/v1/{collection}/{ENTITY[collection]}/faults"
+            one, elsewhere = base + "/TEMP_SENSOR_HOT", base + "/ELSEWHERE"
+            faults += [
+                ("GET", base, {}), ("GET", base + "?status=cleared", {}), ("GET", base + "?status=x", {}),
+                ("GET", f"/api/v1/{collection}/nope/faults", {}), ("GET", f"/api/v1/{collection}/b.d/faults", {}),
+                ("DELETE", base, {"headers": auth}), ("DELETE", base + "?status=x", {"headers": auth}),
+                ("DELETE", base, {}), ("DELETE", base, {"headers": wrong}),
+                ("DELETE", f"/api/v1/{collection}/nope/faults", {"headers": auth}),
+                ("GET", one, {}), ("GET", base + "/NO_SUCH", {}), ("GET", elsewhere, {}),
+                ("GET", base + "/" + "A" * 300, {}),
+                ("DELETE", one, {"headers": auth}), ("DELETE", one, {}), ("DELETE", one, {"headers": wrong}),
+                ("DELETE", elsewhere, {"headers": auth}), ("DELETE", base + "/" + "A" * 300, {"headers": auth}),
+            ]
+        for method, path, kw in faults:
+            r = client.open(path, method=method, **kw)
+            check(doc, method, path, r)
+            seen.setdefault(operation(doc, method, path)[0], set()).add(r.status_code)
+        r = client.get("/api/v1/faults/stream")  # the head only: events are tests/app/test_app_faults.py's
+        assert r.status_code == 200
+        seen.setdefault(check(doc, "GET", "/api/v1/faults/stream", r), set()).add(r.status_code)
+        r.close()
+        hub = faultstream.hub(fw.runtime_dir, 1.0)
+        held = [object() for _ in range(16)]  # max_fault_streams (16) streams open in this HTTP worker
+        hub.streams.update(held)
+        r = client.get("/api/v1/faults/stream")
+        hub.streams.difference_update(held)
+        assert r.status_code == 503 and r.headers["Retry-After"] == "5"
+        seen.setdefault(check(doc, "GET", "/api/v1/faults/stream", r), set()).add(r.status_code)
         # Triggers (their event streams' 200 is text/event-stream: tests/app/test_app_triggers.py).
         for collection in ("apps", "components", "functions"):
             base = f"/api/v1/{collection}/{ENTITY[collection]}/triggers"
@@ -340,6 +396,15 @@ def test_every_route_answers_per_the_document(doc):
     assert {200, 400, 401, 403, 413, 415} <= seen["PUT /components/{component_id}/configurations/{config_id}"]
     assert {204, 401} <= seen["DELETE /apps/{app_id}/configurations/{config_id}"]
     assert {207, 401} <= seen["DELETE /functions/{function_id}/configurations"]
+    # faults (issue 22): every fault route answered, and refused as documented
+    assert seen["GET /faults"] == {200, 400} and seen["DELETE /faults"] == {204, 400, 401, 403}
+    assert seen["GET /faults/stream"] == {200, 503}
+    for collection in ("apps", "components", "functions"):
+        param = "{" + collection[:-1] + "_id}"
+        assert seen[f"GET /{collection}/{param}/faults"] == {200, 400, 404}
+        assert seen[f"DELETE /{collection}/{param}/faults"] == {204, 400, 401, 403, 404}
+        assert seen[f"GET /{collection}/{param}/faults/{{fault_code}}"] == {200, 400, 404}
+        assert seen[f"DELETE /{collection}/{param}/faults/{{fault_code}}"] == {204, 400, 401, 403, 404}
 
 
 def test_every_operation_with_a_json_body_documents_the_body_errors(doc):

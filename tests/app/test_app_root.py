@@ -29,6 +29,9 @@ def test_root(client):
                   "/areas/{area_id}/components", "/areas/{area_id}/contains", "/areas/{area_id}/subareas",
                   "/docs", "/apps/docs", "/apps/{app_id}/docs", "/apps/{app_id}/data/docs"):
         assert f"GET /api/v1{route}" in body["endpoints"], route
+    for endpoint in ("GET /api/v1/faults", "DELETE /api/v1/faults", "GET /api/v1/faults/stream",  # faults
+                     "GET /api/v1/apps/{app_id}/faults/{fault_code}", "DELETE /api/v1/functions/{function_id}/faults"):
+        assert endpoint in body["endpoints"], endpoint
     assert body["endpoints"] == openapi.endpoint_list()
     caps = body["capabilities"]
     assert caps["discovery"] is True and caps["data_access"] is True and caps["publishing"] is False
@@ -164,7 +167,8 @@ def test_entity_docs_fill_in_the_entity(client):
         # operations: services and actions
         "/components/test-robot/operations", "/components/test-robot/operations/{operation_id}",
         "/components/test-robot/operations/{operation_id}/executions",
-        "/components/test-robot/operations/{operation_id}/executions/{execution_id}"]
+        "/components/test-robot/operations/{operation_id}/executions/{execution_id}",
+        "/components/test-robot/faults", "/components/test-robot/faults/{fault_code}"]  # faults (issue 22)
     assert "/components/test-robot/locks/{lock_id}" in doc["paths"]
     get = doc["paths"]["/components/test-robot/hosts"]["get"]
     assert get["operationId"] == "listComponentHosts" and "parameters" not in get

@@ -18,7 +18,9 @@ from tests.support.procs import REPO
 
 CASES = {"floor8", "floor1", "warm8", "warm1", "echo8", "echo1", "hop1", "inside", "old", "cold", "image",
          "image_b64", "idle", "memory", "streams", "fanout", "stream_image", "made_up", "sub_changes",
-         "trigger"}  # operations: a Trigger call against a bare rclpy client
+         "trigger",  # operations: a Trigger call against a bare rclpy client
+         "param_get", "param_put", "rosout",  # configurations (bench/params.py); logs (bench/logs.py)
+         "faults_cpu", "faults_confirm"}  # faults (issue 22): bench/faults.py
 
 
 @pytest.mark.timeout(120)
@@ -56,6 +58,9 @@ def test_quick_bench_runs_every_case_and_writes_json(tmp_path):
     changes = rows["sub_changes"]["values"]
     assert set(changes) == {"5", "25"} and all(v["post_p50_ms"] > 0 and v["delete_p50_ms"] > 0
                                                 for v in changes.values())
+    # faults (issue 22): the arrays were taken, every probe fault was confirmed
+    assert rows["faults_cpu"]["values"]["arrays_taken"] > 0  # the worker took /diagnostics while measured
+    assert rows["faults_confirm"]["values"]["n"] == 5 and rows["faults_confirm"]["values"]["p50_ms"] > 0
     # The table is printed, one line per case.
     for row in rows.values():
         assert row["case"] in proc.stdout
