@@ -19,9 +19,9 @@ import uuid
 
 import pytest
 import requests
+from tests.support.diagpub import DiagPub
 
 from bench.roslogger import LoggerNode
-from tests.support.diagpub import DiagPub
 from tests.support.gateway import Gateway
 from tests.support.procs import poll_until
 from tests.support.sse import EventStream
