@@ -19,8 +19,8 @@ import uuid
 
 import pytest
 import requests
-from tests.support.diagpub import DiagPub
 
+from bench.diagpub import DiagPub
 from bench.roslogger import LoggerNode
 from tests.support.gateway import Gateway
 from tests.support.procs import poll_until
