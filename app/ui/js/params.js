@@ -40,8 +40,11 @@ export class ParametersView {
     let items;
     try {
       items = (await request("GET", this.base)).items;
-      // the descriptors (range, description, read-only) are in each parameter's own answer
-      items = await Promise.all(items.map((item) => request("GET", `${this.base}/${encodeURIComponent(item.id)}`)));
+      // the descriptors (range, description, read-only) are in each parameter's own answer: asked one at a
+      // time, so the panel never adds a burst of requests to the tree's own loading
+      const detailed = [];
+      for (const item of items) detailed.push(await request("GET", `${this.base}/${encodeURIComponent(item.id)}`));
+      items = detailed;
     } catch (error) {
       this.failed = true;
       fill(this.container, title,
