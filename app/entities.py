@@ -46,6 +46,10 @@ PARAM_NAMES = {"areas": "area_id", "components": "component_id", "apps": "app_id
 WRONG_TYPE_ORDER = ("components", "apps", "areas", "functions")
 ROOT_FUNCTION = "root"
 
+# Resource collections linked from component, app and function details (medkit's order; operations, configurations,
+# faults, logs and triggers). ``logs`` and ``triggers`` come later in medkit's lists, see Entity.detail.
+SERVED_RESOURCES = ("operations", "configurations", "faults")
+
 # The relation collections medkit serves under an entity:
 # (owner collection, relation) -> (collection of the listed entities, ``_links`` name of the owner).
 RELATIONS = {
@@ -171,8 +175,9 @@ class Entity:
     def detail(self) -> dict[str, Any]:
         """The entity detail with medkit's URIs, ``capabilities`` and ``_links``.
 
-        Only what this gateway serves is linked: ``data`` and the relation
-        collections.  As in medkit, ``depends-on`` is linked only when there are
+        Only what this gateway serves is linked: ``data``, ``operations``,
+        ``configurations``, ``faults``, ``logs``, ``triggers`` and the relation
+        collections, in medkit's order (``discovery_handlers.cpp``).  As in medkit, ``depends-on`` is linked only when there are
         dependencies (never, in runtime discovery) and an app's ``belongs-to``
         only when it has a host component; a function's ``hosts`` is the URI of
         its hosts collection (the app ids are in ``x-medkit.hosts``).
@@ -184,16 +189,19 @@ class Entity:
         links = {"self": base, "collection": f"{API_BASE}/{self.collection}"}
         caps: list[str]
         ext = dict(self.x_medkit)
+        served = {name: f"{base}/{name}" for name in SERVED_RESOURCES}
         if self.collection == "areas":
             body.update(subareas=base + "/subareas", components=base + "/components",
                         contains=base + "/contains", data=base + "/data")
             caps = ["subareas", "contains", "data"]
         elif self.collection == "components":
-            body.update(data=base + "/data", subcomponents=base + "/subcomponents", hosts=base + "/hosts")
-            caps = ["data", "subcomponents", "hosts"]
+            body.update(data=base + "/data", **served, subcomponents=base + "/subcomponents",
+                        hosts=base + "/hosts", logs=base + "/logs", triggers=base + "/triggers")
+            caps = ["data", *SERVED_RESOURCES, "logs", "subcomponents", "hosts", "triggers"]
         elif self.collection == "apps":
             body["data"] = base + "/data"
-            caps = ["data"]
+            body.update(served, logs=base + "/logs", triggers=base + "/triggers")
+            caps = ["data", *SERVED_RESOURCES, "logs", "triggers"]
             if self.component_id is not None:
                 located = f"{API_BASE}/components/{self.component_id}"
                 body["is-located-on"] = located
@@ -202,8 +210,9 @@ class Entity:
                 links["belongs-to"] = base + "/belongs-to"
                 caps += ["is-located-on", "belongs-to"]
         else:
-            body.update(hosts=base + "/hosts", data=base + "/data")
-            caps = ["hosts", "data"]
+            body.update(hosts=base + "/hosts", data=base + "/data", **served, logs=base + "/logs",
+                        triggers=base + "/triggers")
+            caps = ["hosts", "data", *SERVED_RESOURCES, "logs", "triggers"]
             ext["hosts"] = list(self.hosts or [])
         capabilities = [{"name": name, "href": f"{base}/{name}"} for name in caps]
         if self.collection == "components":

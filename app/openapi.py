@@ -75,6 +75,9 @@ DETAIL_URIS = {
     "apps": (["data"], ["is-located-on", "belongs-to"]),
     "functions": (["hosts", "data"], []),
 }
+# Entity details link the resources (medkit's detail URIs): operations, configurations, faults, logs, triggers.
+for _collection in ("components", "apps", "functions"):
+    DETAIL_URIS[_collection][0].extend(("operations", "configurations", "faults", "logs", "triggers"))
 
 
 def _entity_schemas() -> dict[str, Any]:

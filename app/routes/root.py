@@ -43,6 +43,8 @@ def root():
             "faults": True,  # /diagnostics (app/routes/faults.py)
             "logs": True,  # /rosout (app/routes/logs.py)
             "triggers": True,  # condition triggers (app/routes/triggers.py)
+            # ui (issue 21): the dashboard's Parameters panel shows its editor when configurations may be changed
+            "configuration_writes": bool(cfg.allow_configurations),
             # medkit's features not served here: their routes answer 501 (app/routes/unimplemented.py)
             **unimplemented.capabilities(),
         },

@@ -70,8 +70,15 @@ def test_app_detail():
     assert d["is-located-on"] == "/api/v1/components/my-robot_local"
     assert d["belongs-to"] == "/api/v1/apps/temp_sensor/belongs-to"
     assert "depends-on" not in d  # medkit links it only when there are dependencies
+    for name in ("operations", "configurations", "faults", "logs", "triggers"):
+        assert d[name] == f"/api/v1/apps/temp_sensor/{name}"
     assert d["capabilities"] == [
         {"name": "data", "href": "/api/v1/apps/temp_sensor/data"},
+        {"name": "operations", "href": "/api/v1/apps/temp_sensor/operations"},
+        {"name": "configurations", "href": "/api/v1/apps/temp_sensor/configurations"},
+        {"name": "faults", "href": "/api/v1/apps/temp_sensor/faults"},
+        {"name": "logs", "href": "/api/v1/apps/temp_sensor/logs"},
+        {"name": "triggers", "href": "/api/v1/apps/temp_sensor/triggers"},
         {"name": "is-located-on", "href": "/api/v1/apps/temp_sensor/is-located-on"},
         {"name": "belongs-to", "href": "/api/v1/apps/temp_sensor/belongs-to"}]
     assert d["_links"] == {"self": "/api/v1/apps/temp_sensor", "collection": "/api/v1/apps",
@@ -87,13 +94,19 @@ def test_component_function_and_area_details():
     assert (c["data"], c["subcomponents"], c["hosts"]) == (base + "/data", base + "/subcomponents",
                                                            base + "/hosts")
     assert "depends-on" not in c and "belongs-to" not in c
-    caps = [{"name": n, "href": f"{base}/{n}"} for n in ("data", "subcomponents", "hosts")]
+    for name in ("operations", "configurations", "faults", "logs", "triggers"):
+        assert c[name] == f"{base}/{name}"
+    caps = [{"name": n, "href": f"{base}/{n}"} for n in ("data", "operations", "configurations", "faults", "logs",
+                                                         "subcomponents", "hosts", "triggers")]
     assert c["capabilities"] == caps and c["x-medkit"] == {"source": "runtime", "capabilities": caps}
     assert c["_links"] == {"self": base, "collection": "/api/v1/components"}
     f = idx.get("functions", "powertrain").detail()
     assert f["hosts"] == "/api/v1/functions/powertrain/hosts"
     assert f["x-medkit"] == {"source": "runtime", "hosts": ["gearbox", "temp_sensor"]}
-    assert [cap["name"] for cap in f["capabilities"]] == ["hosts", "data"]
+    for name in ("operations", "configurations", "faults", "logs", "triggers"):
+        assert f[name] == f"/api/v1/functions/powertrain/{name}"
+    assert [cap["name"] for cap in f["capabilities"]] == ["hosts", "data", "operations", "configurations", "faults",
+                                                          "logs", "triggers"]
     # No areas exist in runtime discovery; one built by hand gets medkit's area URIs.
     a = entities.Entity("areas", "engine", "Engine", {}).detail()
     assert (a["subareas"], a["components"], a["contains"]) == (

@@ -56,6 +56,13 @@ def test_root_reflects_allow_publish(fw):
     assert body["capabilities"]["publishing"] is True
 
 
+def test_root_reflects_allow_configurations(fw):
+    """The dashboard's Parameters panel shows its editor only when the gateway allows configuration writes."""
+    assert make_app(fw).test_client().get("/api/v1/").get_json()["capabilities"]["configuration_writes"] is False
+    body = make_app(fw, allow_configurations=True).test_client().get("/api/v1/").get_json()
+    assert body["capabilities"]["configuration_writes"] is True
+
+
 def test_version_info(client):
     body = client.get("/api/v1/version-info").get_json()
     (item,) = body["items"]

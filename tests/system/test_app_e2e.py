@@ -122,6 +122,8 @@ def test_entities_follow_the_ros_graph(gw):
     detail = gw.get("/apps/temp_sensor").json()
     assert detail["x-medkit"]["ros2"]["node"] == "/powertrain/engine/temp_sensor"
     assert detail["is-located-on"] == f"/api/v1/components/{HOST_ID}"
+    assert [c["name"] for c in detail["capabilities"]] == ["data", "operations", "configurations", "faults", "logs",
+                                                           "triggers", "is-located-on", "belongs-to"]
     located = gw.get("/apps/temp_sensor/is-located-on").json()
     assert located["items"][0]["id"] == HOST_ID
 
@@ -174,17 +176,28 @@ def test_relations_follow_the_ros_graph(gw):
 
 
 def test_every_link_of_every_entity_answers(gw):
-    """A client that follows every URI a detail advertises never meets a 404."""
+    """A client that follows every URI a detail advertises never meets a 404.
+
+    Each detail links operations, configurations, faults, logs and triggers (medkit's URIs and capabilities), and
+    each of those answers 200 through the ROS worker.
+    """
     wait_for_apps(gw, APPS)
     followed = 0
+    resources = ("operations", "configurations", "faults", "logs", "triggers")
     for collection in ("components", "apps", "functions"):
         for item in gw.get(f"/{collection}").json()["items"]:
             detail = gw.get(f"/{collection}/{item['id']}").json()
+            base = f"/api/v1/{collection}/{item['id']}"
+            caps = {c["name"]: c["href"] for c in detail["capabilities"]}
+            for name in resources:
+                assert detail[name] == caps[name] == f"{base}/{name}", (collection, item["id"], name)
             uris = {v for v in detail.values() if isinstance(v, str) and v.startswith("/api/v1/")}
             uris |= {c["href"] for c in detail["capabilities"]} | set(detail["_links"].values())
             for uri in uris:
                 r = gw.get(uri[len("/api/v1"):])
                 assert r.status_code == 200, (uri, r.text)
+                if uri.rsplit("/", 1)[1] in resources:
+                    assert isinstance(r.json()["items"], list), (uri, r.text)
                 followed += 1
     assert followed > 30
 

@@ -53,6 +53,13 @@ function showRoute() {
     view.start();
     return;
   }
+  // ui (issue 21): the Parameters panel of an app (#/apps/<id>/configurations, js/params.js)
+  const params = /^#\/(apps|components|functions)\/([A-Za-z0-9_-]+)\/configurations$/.exec(decodeURI(location.hash));
+  if (params) {
+    view = new ParametersView(container, { collection: params[1], entityId: params[2] }, { capabilities });
+    view.start();
+    return;
+  }
   if (!match) {
     fill(container, h("div", { class: "placeholder" }, h("h2", {}, "Pick a data item"),
       h("p", {}, "Choose a topic in the tree to see its live value, plot its fields and, where the "
@@ -96,3 +103,6 @@ showRoute();
 import { LogsPanel } from "./logs.js";
 
 new LogsPanel($("logs-body"), $("logs-severity"), $("logs-status")).start();
+
+// ui (issue 21): the Parameters panel (js/params.js), shown by showRoute for #/apps/<id>/configurations
+import { ParametersView } from "./params.js";

@@ -113,7 +113,12 @@ export class EntityTree {
         ? h("li", {}, h("a", { class: "ops-link", href: opsHash, dataset: { app: app.id },
                                "aria-current": opsHash === this.current ? "true" : null }, "⚙ operations"))
         : null;
-      const list = h("ul", {}, opsLink, items.map((t) => {
+      // ui (issue 21): every app's Parameters panel (its node's ROS 2 parameters)
+      const paramsHash = `#/apps/${app.id}/configurations`;
+      const paramsLink = h("li", {}, h("a", { class: "params-link", href: paramsHash, dataset: { app: app.id },
+                                              "aria-current": paramsHash === this.current ? "true" : null },
+                                        "⚙ parameters"));
+      const list = h("ul", {}, opsLink, paramsLink, items.map((t) => {
         const hash = itemRoute(app.href, t.name);
         return h("li", {}, h("a", {
           class: "topic", href: hash, title: `${t.name} (${t.ros2.type || "type unknown"})`,
