@@ -198,12 +198,17 @@ class FaultManager:
 
         from . import msgtypes
 
-        self.cls = msgtypes.load_type(TYPE)
-        self.sub = self.node.create_subscription(self.cls, TOPIC, lambda _msg: None,
-                                                 QoSProfile(depth=DEPTH, reliability=ReliabilityPolicy.RELIABLE))
         self.store.start()
-        self.executor.call_later(TAKE_EVERY, self._take_round)
         self.executor.call_later(TICK_EVERY, self._tick_round)
+        try:
+            self.cls = msgtypes.load_type(TYPE)
+            self.sub = self.node.create_subscription(self.cls, TOPIC, lambda _msg: None,
+                                                     QoSProfile(depth=DEPTH, reliability=ReliabilityPolicy.RELIABLE))
+        except Exception as exc:  # diagnostic_msgs missing or broken: the gateway still serves the rest
+            log.error("faults: cannot subscribe to %s (%s): no new faults are seen; the stored ones are "
+                      "still served", TOPIC, exc)
+            return
+        self.executor.call_later(TAKE_EVERY, self._take_round)
 
     def shutdown(self, timeout: float) -> None:
         self._flush(force=True)

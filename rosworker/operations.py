@@ -33,6 +33,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from common.process import write_atomic
 from ipc.errors import IpcError
 
 from .actions import ActionClients, Goal
@@ -178,13 +179,8 @@ class _Saver(threading.Thread):
                 return
 
     def _write(self, text: str) -> None:
-        tmp = self.path + ".tmp"
         try:
-            with open(tmp, "w") as fh:
-                fh.write(text)
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, self.path)
+            write_atomic(self.path, text.encode())  # 0600, as every file of the runtime dir
         except OSError as exc:
             log.warning("could not write %s: %s", self.path, exc)
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 import sys
 import tempfile
@@ -24,6 +25,9 @@ class RosWorker(Proc):
         self._own_dir = runtime_dir is None
         self.runtime_dir = runtime_dir or tempfile.mkdtemp(prefix="sovd-rw-")
         argv = [str(BIN / "sovd-rosworker"), "--runtime-dir", self.runtime_dir]
+        # The fault store of this worker: in its runtime dir (kept for a worker restarted on the
+        # same dir), never the user's own state dir.
+        settings.setdefault("state_dir", os.path.join(self.runtime_dir, "state"))
         for name, value in settings.items():
             flag = "--" + name.replace("_", "-")
             if value is True:
