@@ -91,7 +91,7 @@ def test_each_package_imports_only_the_packages_below_it():
     assert not offenders, "imports against the layout:\n" + "\n".join(offenders)
 
 
-# The bench runs from tests/ (tests/system/test_bench_smoke.py), not the other way round: a test
+# The bench runs from tests/ (tests/reliability/test_bench_smoke.py), not the other way round: a test
 # may move without breaking ``make bench``.  Its one link to tests/ is the process harness both
 # start the gateway with (a private ROS domain, processes with deadlines, the gateway as an
 # operator starts it); its ROS programs and load clients are its own (bench/).

@@ -50,6 +50,7 @@ ERROR_CODES = {
     "invalid-request", "invalid-parameter", "entity-not-found", "resource-not-found",
     "internal-error", "not-implemented", "service-unavailable", "not-responding", "vendor-error",
     "unauthorized", "forbidden", "payload-too-large", "rate-limit-exceeded",
+    "operation-not-found", "precondition-not-fulfilled",  # operations (medkit's codes)
 }
 # vendor_code -> the HTTP status it travels with (ipc/errors.py, as medkit sends them)
 VENDOR_CODES = {
@@ -66,6 +67,13 @@ VENDOR_CODES = {
     "x-medkit-unsupported-protocol": 400,
     "x-medkit-subscribe-failed": 500,
     "x-medkit-publish-failed": 500,
+    # operations and configurations (app/errors.py)
+    "x-medkit-ros2-service-unavailable": 503,
+    "x-medkit-ros2-action-unavailable": 503,
+    "x-medkit-ros2-action-rejected": 400,
+    "x-medkit-ros2-type-introspection-failed": 400,
+    "x-medkit-ros2-node-unavailable": 503,
+    "x-medkit-ros2-parameter-read-only": 403,
 }
 CLIENT_TIMEOUT = 20.0  # seconds, per socket operation; far above any deadline of the gateway
 
@@ -82,6 +90,8 @@ def problem(status: int, headers: dict[str, str], body: bytes, *,
     a problem unless ``allow`` lists it.
     """
     ctype = headers.get("content-type", "")
+    if status == 204:  # no content: no body to check (whatever type the framework names)
+        return None if not body else f"204 with a body: {body[:80]!r}"
     if not ctype.startswith("application/json"):
         return f"{status} with Content-Type {ctype!r}"
     try:
