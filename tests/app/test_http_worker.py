@@ -383,7 +383,7 @@ def test_max_requests_ends_streams_as_a_stop_does(tmp_path):
         reader = threading.Thread(target=stream_until_closed,
                                   args=(base + "/x-sovd-debug/stream?interval=0.05", frames, 30))
         reader.start()  # request 3
-        poll_until(lambda: frames.count("tick") >= 2, 10, message="the stream is flowing")
+        poll_until(lambda: frames.count("tick") >= 2, 30, message="the stream is flowing")
         for _ in range(2):  # requests 4 and 5: the worker is done after this one
             assert requests.get(base + "/version-info", timeout=5).ok
         reader.join(15)  # far below the 60 s grace
@@ -405,7 +405,7 @@ def test_sigterm_to_the_gateway_ends_streams_and_idle_connections_without_waitin
                    for f in streams]
         for t in readers:
             t.start()
-        poll_until(lambda: all(f.count("tick") >= 2 for f in streams), 10, message="every stream flowing")
+        poll_until(lambda: all(f.count("tick") >= 2 for f in streams), 30, message="every stream flowing")
         idle = [connect(gw) for _ in range(20)]             # connected, nothing sent
         for s in idle[:5]:                                  # kept alive after one request
             s.sendall(HEALTH + b"\r\n")

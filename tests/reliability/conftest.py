@@ -1,7 +1,8 @@
 """The reliability suite: scale, per-test time limits, shared fixtures and the figures table.
 
-``make test`` runs the short form of every scenario; ``make reliability``
-(``SOVD_RELIABILITY=long``) the long form, and prints the figures table.  The
+``make reliability`` (``SOVD_RELIABILITY=long``) runs the long form of every
+scenario and prints the figures table; ``make test`` leaves this folder out (its
+time on 2 cores), and ``pytest tests/reliability`` alone runs the short form.  The
 table is printed at the end of every session that ran a scenario (also in
 the short form) and written as JSON to ``$TMPDIR/sovd-reliability-figures-<mode>.json``,
 never into the repository.
