@@ -26,7 +26,7 @@ run: $(STAMP)
 TEST_JOBS ?= 4
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -n $(TEST_JOBS) --dist loadfile --ignore=tests/reliability $(PYTEST_ARGS)
+	$(BIN)/python -m pytest -n $(TEST_JOBS) --dist loadfile --ignore=tests/reliability -m "not slow" $(PYTEST_ARGS)
 
 lint: $(STAMP)
 	$(BIN)/ruff check app supervisor rosworker ipc common demo tests bench
@@ -36,6 +36,7 @@ bench: $(STAMP)
 
 reliability: $(STAMP)
 	SOVD_RELIABILITY=long $(BIN)/python -m pytest tests/reliability -s -p no:randomly
+	$(BIN)/python -m pytest -m slow tests --ignore=tests/reliability -p no:randomly
 
 # The README's picture of the dashboard, taken by its browser test (CI=true: fail, not skip, without chromium).
 screenshot: $(STAMP)

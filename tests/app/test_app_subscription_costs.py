@@ -14,6 +14,7 @@ import shutil
 import tempfile
 import time
 
+import pytest
 import requests
 
 from tests.support.gateway import Gateway
@@ -65,6 +66,7 @@ def test_one_client_address_holds_at_most_its_cap_and_others_still_get_theirs():
 MADE_UP = 1000  # fast subscriptions (the default max_subscriptions), each on a topic nobody publishes
 
 
+@pytest.mark.slow  # a 70 s load scenario: make reliability (see the Makefile)
 def test_fast_subscriptions_on_made_up_topics_leave_the_ros_worker_nearly_idle(nodes):
     gw = _gateway()
     try:

@@ -72,14 +72,18 @@ class Watch:
         self.active = True
         page.on("console", self._console)
         page.on("pageerror", lambda exc: self._add(f"uncaught exception: {exc}"))
-        page.on("requestfailed", lambda req: self._add(f"request failed: {req.method} {req.url} "
-                                                       f"({req.failure})"))
+        page.on("requestfailed", self._failed)
         page.on("response", self._response)
         page.on("request", lambda req: self.active and self.requests.append(req.url))
 
     def allow(self, method: str, status: int) -> None:
         """Answers with this status to this method are expected from now on (a test provokes them)."""
         self.allowed.add((method, status))
+
+    def _failed(self, req) -> None:
+        # net::ERR_ABORTED is the page's own doing (a navigation, or a fetch it aborted), never an answer.
+        if "ERR_ABORTED" not in str(req.failure):
+            self._add(f"request failed: {req.method} {req.url} ({req.failure})")
 
     def _add(self, text: str) -> None:
         if self.active:
