@@ -37,6 +37,7 @@ from common.process import PerProcess
 from ipc import events, protocol
 from ipc.errors import IpcError
 
+from . import channel
 from .streams import KEEPALIVE, SendStalled, _worker_stopping
 
 log = logging.getLogger("sovd.http.faultstream")
@@ -81,7 +82,9 @@ class FaultStream:
                                if isinstance(e, dict) and isinstance(e.get("id"), int)]
                 except IpcError as exc:
                     log.info("fault stream: no replay after event %d: %s", self.last_id, exc.message)
-            # The head goes out at once (the client knows the stream is open), with a comment.
+            # The head goes out once the ROS worker has this process's subscription (app/channel.py),
+            # then at once (the client knows the stream is open), with a comment.
+            hub.confirmations.wait(events.FAULT_KEY)
             yield b": fault stream open\n\n"
             quiet_since = time.monotonic()
             while True:
@@ -137,14 +140,10 @@ class FaultHub:
         self.runtime_dir = runtime_dir
         self.send_timeout = send_timeout
         self.streams: set[FaultStream] = set()
+        self.confirmations = channel.Confirmations()
         self._ctx = zmq.Context()
-        sock = self._ctx.socket(zmq.SUB)
-        sock.setsockopt(zmq.LINGER, 0)
-        sock.setsockopt(zmq.RCVHWM, events.HIGH_WATER)
-        sock.setsockopt(zmq.RECONNECT_IVL, 100)
-        sock.setsockopt(zmq.RECONNECT_IVL_MAX, 1000)
-        sock.setsockopt(zmq.MAXMSGSIZE, protocol.MAX_REPLY_FRAME)
-        sock.setsockopt(zmq.SUBSCRIBE, events.FAULT_KEY)
+        sock = channel.subscriber(self._ctx, events.FAULT_KEY)
+        self.confirmations.expect(events.FAULT_KEY)
         sock.connect(events.endpoint(runtime_dir))
         self._sock = sock
         self._reader = gevent.spawn(self._read)
@@ -158,6 +157,7 @@ class FaultHub:
         while True:
             try:
                 frames = self._sock.recv_multipart()
+                self.confirmations.seen(frames[0])
                 if len(frames) < 2 or frames[0] != events.FAULT_KEY:
                     continue
                 event = protocol.unpack(frames[1], protocol.MAX_REPLY_FRAME)

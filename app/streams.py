@@ -64,7 +64,7 @@ from common.process import PerProcess
 from ipc import events, protocol
 from ipc.errors import IpcError
 
-from . import feeds, metrics, rosclient, samples
+from . import channel, feeds, metrics, rosclient, samples
 
 log = logging.getLogger("sovd.http.streams")
 
@@ -304,15 +304,10 @@ class StreamHub:
     # ---- lifecycle ------------------------------------------------------------------------
     def start(self) -> None:
         self._ctx = zmq.Context()
-        sock = self._ctx.socket(zmq.SUB)
-        sock.setsockopt(zmq.LINGER, 0)
-        sock.setsockopt(zmq.RCVHWM, events.HIGH_WATER)
-        sock.setsockopt(zmq.RECONNECT_IVL, 100)
-        sock.setsockopt(zmq.RECONNECT_IVL_MAX, 1000)
-        sock.setsockopt(zmq.MAXMSGSIZE, protocol.MAX_REPLY_FRAME)
+        # Frames come every tick: a subscription that takes a moment to arrive costs one tick, so
+        # this hub does not wait for confirmations (app/channel.py) as the event streams do.
+        sock = channel.subscriber(self._ctx, events.CONTROL_KEY, events.HEARTBEAT_KEY)
         self._monitor = sock.get_monitor_socket(zmq.EVENT_CONNECTED | zmq.EVENT_DISCONNECTED)
-        sock.setsockopt(zmq.SUBSCRIBE, events.CONTROL_KEY)
-        sock.setsockopt(zmq.SUBSCRIBE, events.HEARTBEAT_KEY)
         sock.connect(events.endpoint(self.runtime_dir))
         self._sock = sock
         self.heartbeat = time.monotonic()  # a grace period for the first heartbeat

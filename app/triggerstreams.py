@@ -45,7 +45,7 @@ from common.process import PerProcess
 from ipc import events, protocol
 from ipc.errors import IpcError
 
-from . import metrics, rosclient
+from . import channel, metrics, rosclient
 from .streams import (
     HEARTBEAT_LOST,
     KEEPALIVE,
@@ -126,7 +126,10 @@ class TriggerStream:
         hub = self.hub
         stalled = gevent.Timeout(hub.send_timeout, SendStalled(hub.send_timeout))
         try:
-            hub.register(self)  # first: events from now on reach this stream
+            hub.register(self)  # first: events from now on reach this stream ...
+            # ... once the ROS worker has the subscription (app/channel.py): before that, an event
+            # would be dropped at its end while the client already counts on it
+            hub.confirmations.wait(self.key, events.TRIGGER_CONTROL_PREFIX)
             hub.replay(self)    # then: what fired before it opened
             yield b""           # the response's head goes now, not with the first event
             quiet_since = time.monotonic()
@@ -172,20 +175,15 @@ class TriggerHub:
         self.prom = metrics.http()
         self.connected = False
         self.heartbeat = 0.0
+        self.confirmations = channel.Confirmations()
         self._ctx = self._sock = self._monitor = None
         self._greenlets: list[gevent.Greenlet] = []
 
     def start(self) -> None:
         self._ctx = zmq.Context()
-        sock = self._ctx.socket(zmq.SUB)
-        sock.setsockopt(zmq.LINGER, 0)
-        sock.setsockopt(zmq.RCVHWM, events.HIGH_WATER)
-        sock.setsockopt(zmq.RECONNECT_IVL, 100)
-        sock.setsockopt(zmq.RECONNECT_IVL_MAX, 1000)
-        sock.setsockopt(zmq.MAXMSGSIZE, protocol.MAX_REPLY_FRAME)
+        sock = channel.subscriber(self._ctx, events.TRIGGER_CONTROL_PREFIX, events.HEARTBEAT_KEY)
+        self.confirmations.expect(events.TRIGGER_CONTROL_PREFIX)
         self._monitor = sock.get_monitor_socket(zmq.EVENT_CONNECTED | zmq.EVENT_DISCONNECTED)
-        sock.setsockopt(zmq.SUBSCRIBE, events.TRIGGER_CONTROL_PREFIX)
-        sock.setsockopt(zmq.SUBSCRIBE, events.HEARTBEAT_KEY)
         sock.connect(events.endpoint(self.runtime_dir))
         self._sock = sock
         self.heartbeat = time.monotonic()
@@ -209,6 +207,7 @@ class TriggerHub:
         streams = self.by_id.get(stream.id)
         if streams is None:
             streams = self.by_id[stream.id] = set()
+            self.confirmations.expect(stream.key)
             self._sock.setsockopt(zmq.SUBSCRIBE, stream.key)
         streams.add(stream)
         self.prom.streams_open.inc()
@@ -235,6 +234,7 @@ class TriggerHub:
         self.prom.streams_open.dec()
         if not streams:
             del self.by_id[stream.id]
+            self.confirmations.forget(stream.key)
             if self._sock is not None:
                 self._sock.setsockopt(zmq.UNSUBSCRIBE, stream.key)
 
@@ -251,6 +251,8 @@ class TriggerHub:
 
                     kind = parse_monitor_message(self._monitor.recv_multipart())["event"]
                     self.connected = kind == zmq.EVENT_CONNECTED
+                    if not self.connected:
+                        self.confirmations.lost()
                 if self._sock in ready:
                     for _ in range(1000):
                         try:
@@ -265,6 +267,7 @@ class TriggerHub:
 
     def _dispatch(self, frames: list[bytes]) -> None:
         key = frames[0]
+        self.confirmations.seen(key)
         if key == events.HEARTBEAT_KEY:
             self.heartbeat = time.monotonic()
             return

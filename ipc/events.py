@@ -1,6 +1,6 @@
 """The events channel: cyclic-subscription frames from the ROS worker to the HTTP workers.
 
-Transport: a ZeroMQ PUB socket that the ROS worker binds on
+Transport: a ZeroMQ XPUB socket that the ROS worker binds on
 ``ipc://<runtime_dir>/rosworker-events.sock`` (0600, like the others), and one
 SUB socket per HTTP worker.  Every message is a multipart whose first frame
 is its key; SUB sockets filter on key prefixes, so an HTTP worker receives
@@ -14,7 +14,13 @@ streams watch them.  The wire format is documented in ``ipc/PROTOCOL.md``.
 - control ``c|<subscription id>`` + msgpack ``{"event": "updated" | "deleted" |
   "expired", "id", "key", "interval", "expires_in"}``, and ``c|shutdown`` when the
   ROS worker stops;
-- heartbeat ``h|`` + msgpack ``{"pid", "t"}`` every second.
+- heartbeat ``h|`` + msgpack ``{"pid", "t"}`` every second;
+- confirmation: a one-frame message, the subscribed prefix itself, answers every
+  subscription an HTTP worker makes (the XPUB is verbose: the ROS thread reads
+  each one).  The XPUB applied the subscription before handing it over, so
+  whoever receives the confirmation receives everything of that prefix sent
+  after it: an event stream opens only then (``app/channel.py``).  A reader
+  passes over one-frame messages it does not wait for.
 """
 
 from __future__ import annotations

@@ -69,6 +69,22 @@ class RuntimeLock:
             self._fh = None
 
 
+_MORE = int(zmq.SNDMORE | zmq.NOBLOCK)  # plain ints: pyzmq's flag enums cost more than the send itself
+_LAST = int(zmq.NOBLOCK)
+ZERO_COPY_FROM = 64 * 1024  # a part this large is handed to ZeroMQ without a copy; a smaller one is copied
+
+
+def send_frames(sock: zmq.Socket, frames: list[bytes]) -> None:
+    """``sock.send_multipart(frames, zmq.NOBLOCK)`` at a third of its cost (about 3 µs against 10 for a
+    small three-part frame, measured here): one ``send`` per part with int flags, and a copy of each
+    small part, which is cheaper than pyzmq's zero-copy bookkeeping.  Raises ``zmq.ZMQError`` as that
+    does; the ROUTER and XPUB it serves drop rather than refuse a frame, so none is sent in part."""
+    send = sock.send
+    last = len(frames) - 1
+    for i, part in enumerate(frames):
+        send(part, _MORE if i < last else _LAST, copy=len(part) < ZERO_COPY_FROM)
+
+
 def bind_router(zctx: zmq.Context, runtime_dir: str, name: str) -> zmq.Socket:
     """A ROUTER bound to ``ipc://<runtime_dir>/<name>``, private to the service user (0600)."""
     router = zctx.socket(zmq.ROUTER)
@@ -82,10 +98,12 @@ def bind_router(zctx: zmq.Context, runtime_dir: str, name: str) -> zmq.Socket:
 
 
 def bind_publisher(zctx: zmq.Context, runtime_dir: str) -> zmq.Socket:
-    """The events PUB socket (``ipc/events.py``), private to the service user (0600)."""
-    pub = zctx.socket(zmq.PUB)
+    """The events socket (``ipc/events.py``), private to the service user (0600): an XPUB that hands
+    the ROS worker every subscription message (verbose), so that it can confirm each one."""
+    pub = zctx.socket(zmq.XPUB)
     pub.setsockopt(zmq.LINGER, 0)
     pub.setsockopt(zmq.SNDHWM, events.HIGH_WATER)
+    pub.setsockopt(zmq.XPUB_VERBOSE, 1)
     pub.setsockopt(zmq.MAXMSGSIZE, 4096)  # subscription messages are all it ever receives
     return _bind_private(pub, runtime_dir, events.EVENTS_SOCKET_NAME)
 

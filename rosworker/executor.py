@@ -59,7 +59,7 @@ import zmq
 
 from ipc import protocol
 from ipc.errors import IpcError
-from ipc.server import Request, bind_router, read_requests
+from ipc.server import Request, bind_router, read_requests, send_frames
 
 from .requestlog import bound
 from .stats import Stats
@@ -151,6 +151,8 @@ class RosExecutor:
         # (name, active, poll), see add_poller.
         self._pollers: list[tuple[str, Callable[[], bool], Callable[[], None]]] = []
         self._posted: collections.deque[Callable[[], None]] = collections.deque()
+        # Other sockets the loop waits on: socket -> (name, what reads it), see add_reader.
+        self._readers: dict[zmq.Socket, tuple[str, Callable[[], None]]] = {}
 
     # ---- any thread -------------------------------------------------------------------
     def stop(self) -> None:
@@ -208,6 +210,17 @@ class RosExecutor:
         """
         self._pollers.append((f"polling {name}", active, poll))
 
+    def add_reader(self, name: str, sock: zmq.Socket, on_readable: Callable[[], None]) -> None:
+        """The loop also waits on ``sock`` and calls ``on_readable()`` when it has something to read
+        (the events socket's subscription messages); a failure is contained like a timer's."""
+        self._readers[sock] = (f"reading {name}", on_readable)
+        if self._poller is not None:
+            self._poller.register(sock, zmq.POLLIN)
+
+    def remove_reader(self, sock: zmq.Socket) -> None:
+        if self._readers.pop(sock, None) is not None and self._poller is not None:
+            self._poller.unregister(sock)
+
     def _polling(self) -> list[tuple[str, Callable[[], bool], Callable[[], None]]]:
         return [p for p in self._pollers if p[1]()] if self._pollers else []
 
@@ -217,6 +230,8 @@ class RosExecutor:
         self._poller = zmq.Poller()
         self._poller.register(self._router, zmq.POLLIN)
         self._poller.register(self._wake_r, zmq.POLLIN)
+        for sock in self._readers:
+            self._poller.register(sock, zmq.POLLIN)
 
     def call_later(self, delay: float, fn: Callable[[], None]) -> Timer:
         timer = Timer(time.monotonic() + delay, fn)
@@ -284,7 +299,7 @@ class RosExecutor:
     def _send_frame(self, identity: bytes, frame: bytes) -> None:
         self._last_reply = time.monotonic()
         try:
-            self._router.send_multipart([identity, frame], zmq.NOBLOCK, copy=False)
+            send_frames(self._router, [identity, frame])
         except zmq.ZMQError:
             pass  # the client went away (or its queue is full): nobody to answer
 
@@ -390,6 +405,9 @@ class RosExecutor:
                 self.run_posted()
             if self._router in events:
                 self.guarded("reading requests", self._read)
+            for sock, (where, on_readable) in self._readers.items():
+                if sock in events:
+                    self.guarded(where, on_readable)
             self._run_timers()
             if cold:
                 self._wake_cold()

@@ -81,7 +81,7 @@ import zmq
 
 from ipc import events, protocol
 from ipc.errors import IpcError
-from ipc.server import bind_publisher
+from ipc.server import bind_publisher, send_frames
 
 from .executor import RosExecutor, Timer
 from .graph import GraphMonitor
@@ -91,6 +91,7 @@ from .stats import Stats
 log = logging.getLogger("sovd.rosworker.streams")
 
 HEARTBEAT_EVERY = 1.0
+CONFIRM_BATCH = 1000  # subscription messages confirmed per round of the loop at most
 SAVE_WAIT = 1.0     # seconds a changed registry waits for the writer before it is answered anyway
 PHASE_MARGIN = 0.002  # seconds after a message's arrival that its topic's phased tick comes
 PHASE_SLACK = 0.005   # a new message taken later than MARGIN + this after it arrived is out of phase
@@ -165,12 +166,13 @@ def _saved_at_once(then: Callable[[], None] | None = None) -> None:
 
 
 class _Watch:
-    """A ``(topic, bytes mode)`` watched at one interval: when it was first ticked, its tick group
-    (``slot``: None on the interval's grid, else its phase in ms) and when it last ticked."""
+    """A ``(topic, bytes mode)`` watched at one interval: its frames' key, when it was first ticked, its
+    tick group (``slot``: None on the interval's grid, else its phase in ms) and when it last ticked."""
 
-    __slots__ = ("since", "count", "slot", "last")
+    __slots__ = ("key", "since", "count", "slot", "last")
 
-    def __init__(self):
+    def __init__(self, key: bytes):
+        self.key = key
         self.since = time.monotonic()
         self.count = 0
         self.slot: int | None = None
@@ -228,6 +230,7 @@ class StreamRegistry:
     # ---- set-up (ROS thread, before the loop) ---------------------------------------------
     def bind(self) -> None:
         self._pub = bind_publisher(self.zctx, self.runtime_dir)
+        self.executor.add_reader("the events channel's subscriptions", self._pub, self._confirm)
         for interval, seconds in events.INTERVALS.items():
             self._schedule(interval, None, time.monotonic() + seconds)
         self.executor.call_later(0, self._heartbeat)
@@ -284,6 +287,7 @@ class StreamRegistry:
     def close(self) -> None:
         if self._pub is not None:
             self._send([events.CONTROL_KEY + b"shutdown", protocol.pack({"event": "shutdown"})])
+            self.executor.remove_reader(self._pub)
             self._pub.close(linger=200)
             self._pub = None
 
@@ -408,7 +412,7 @@ class StreamRegistry:
         watches = self.watches[sub.interval]
         watch = watches.get((sub.topic, sub.bytes))
         if watch is None:
-            watch = watches[(sub.topic, sub.bytes)] = _Watch()
+            watch = watches[(sub.topic, sub.bytes)] = _Watch(sub.key)
             phase = self._phases.setdefault(sub.topic, _Phase())
             self._join(sub.interval, (sub.topic, sub.bytes), watch, phase.anchor)
         watch.count += 1
@@ -507,7 +511,7 @@ class StreamRegistry:
         try:
             result = self._peek(topic, mode)
         except IpcError as exc:
-            self._publish(events.data_key(interval, mode, topic), {"ts": stamp, "error": exc.to_wire()})
+            self._publish(watch.key, {"ts": stamp, "error": exc.to_wire()})
             return
         if result is None:  # subscribed, no first message yet
             if time.monotonic() - watch.since < self.sample_timeout:
@@ -517,7 +521,7 @@ class StreamRegistry:
         meta["ts"] = stamp
         if result["status"] == "metadata_only":
             meta["timestamp"] = stamp  # a kept answer says "now", as a fresh one would
-        self._publish(events.data_key(interval, mode, topic), meta, result["data_json"])
+        self._publish(watch.key, meta, result["data_json"])
         if result["status"] == "data" and isinstance(result.get("timestamp"), int):
             self._follow(topic, result["timestamp"], scheduled, offset_s)
 
@@ -554,6 +558,19 @@ class StreamRegistry:
         self.executor.call_later(HEARTBEAT_EVERY, self._heartbeat)
         self._send([events.HEARTBEAT_KEY, protocol.pack({"pid": os.getpid(), "t": time.time_ns()})])
 
+    def _confirm(self) -> None:
+        """Each subscription an HTTP worker made is answered with a one-frame message of its prefix
+        (``ipc/events.py``): the XPUB applies a subscription before it hands it over, so that message,
+        and every frame of the prefix sent after it, reaches the subscriber."""
+        for _ in range(CONFIRM_BATCH):
+            try:
+                message = self._pub.recv(zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            if len(message) > 1 and message[0] == 1:
+                self.stats.subscriptions_confirmed += 1
+                self._send([message[1:]])
+
     # Other pieces (faults: rosworker/faults.py; triggers: rosworker/triggers.py) send their events
     # on this channel too.
     def send(self, frames: list[bytes]) -> None:
@@ -565,6 +582,6 @@ class StreamRegistry:
         if self._pub is None:
             return
         try:
-            self._pub.send_multipart(frames, zmq.NOBLOCK, copy=False)
+            send_frames(self._pub, frames)
         except zmq.ZMQError:
             pass  # PUB never blocks: a subscriber past its high-water mark misses this frame

@@ -231,6 +231,8 @@ def _watch(args: argparse.Namespace, client: RosWorkerClient, endpoint: str) -> 
             if not sock.poll(200):
                 continue
             frames = sock.recv_multipart()
+            if len(frames) < 2:
+                continue  # the ROS worker's confirmation of a subscription (ipc/events.py)
             meta = protocol.unpack(frames[1])
             if frames[0] != sub["key"]:  # a control event: the subscription is gone
                 if meta.get("event") in ("deleted", "expired"):

@@ -224,7 +224,10 @@ def test_faults_and_logs_triggers_survive_a_ros_worker_sigkill_and_fire_after_it
         os.kill(old, signal.SIGKILL)
         poll_until(lambda: gateway.rosworker_pid() != old and gateway.get("/health").json()[
             "x-medkit-subscription-executor"]["worker_alive"], 30, message="the ROS worker restarted")
-        listed = {t["id"]: t for t in gateway.get(f"/apps/{node}/triggers").json()["items"]}
+        # The new ROS worker lists the app once its first graph poll has found the node again.
+        listing = poll_until(lambda: (r := gateway.get(f"/apps/{node}/triggers")).status_code == 200 and r, 30,
+                             message="the app's triggers listed by the restarted ROS worker")
+        listed = {t["id"]: t for t in listing.json()["items"]}
         assert set(listed) == {logs.json()["id"], faults.json()["id"]}
         assert all(t["status"] == "active" for t in listed.values())
         with stream(gateway, logs.json()) as lines, stream(gateway, faults.json()) as confirmed:

@@ -86,12 +86,15 @@ def stats(gw) -> dict:
 
 def test_on_change_fires_on_the_first_value_and_each_change_and_two_nan_are_no_change(gw, topic):
     trig = topic.create({"condition_type": "OnChange"}, multishot=True, lifetime=60)
+    confirmed = stats(gw)["subscriptions_confirmed"]
     with topic.stream(trig) as stream:
+        # The head came once the ROS worker had the stream's subscription (app/channel.py).
+        assert stats(gw)["subscriptions_confirmed"] > confirmed
         for value in (1.0, 1.0, 2.0, float("nan"), float("nan"), float("inf"), float("inf"), 3.0):
             topic.pub.send({"data": value})
-        got = [stream.next(timeout=10) for _ in range(5)]
+        got = stream.take(5, timeout=10)
         assert [e["payload"] for e in got] == [{"data": 1.0}, {"data": 2.0}, {"data": "NaN"},
-                                               {"data": "Infinity"}, {"data": 3.0}]
+                                               {"data": "Infinity"}, {"data": 3.0}], stats(gw)
         assert all(e["timestamp"].endswith("Z") and "error" not in e for e in got)
         assert stream.collect(0.5) == []  # nothing more: the repeats did not fire
 
@@ -109,8 +112,8 @@ def test_enter_and_leave_range_fire_on_the_crossing_only_with_one_take_per_messa
     with topic.stream(enter) as entered, topic.stream(leave) as left:
         for value in values:
             topic.pub.send({"data": value})
-        assert [entered.next(timeout=10)["payload"]["data"] for _ in range(2)] == [10.0, 3.0]
-        assert [left.next(timeout=10)["payload"]["data"] for _ in range(3)] == [20.0, "NaN", -0.5]
+        assert [e["payload"]["data"] for e in entered.take(2, timeout=10)] == [10.0, 3.0], stats(gw)
+        assert [e["payload"]["data"] for e in left.take(3, timeout=10)] == [20.0, "NaN", -0.5], stats(gw)
         assert entered.collect(0.3) == [] and left.collect(0.1) == []
     # One take and one evaluation per message, for five triggers on the topic.
     poll_until(lambda: stats(gw)["trigger_messages"] - before >= len(values), 10, message="messages counted")
@@ -128,7 +131,7 @@ def test_on_change_to_with_a_path_into_the_message(gw):
         with temp.stream(trig) as stream:
             for n, value in enumerate((10.0, 50.0, 50.0, 20.0, 50.0)):
                 temp.pub.send({"temperature": value, "variance": float(n)})
-            got = [stream.next(timeout=10)["payload"] for _ in range(2)]
+            got = [e["payload"] for e in stream.take(2, timeout=10)]
             assert [(p["temperature"], p["variance"]) for p in got] == [(50.0, 1.0), (50.0, 4.0)]
             assert set(got[0]) == {"header", "temperature", "variance"}  # the message itself
             assert stream.collect(0.3) == []

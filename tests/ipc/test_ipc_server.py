@@ -107,6 +107,29 @@ def test_the_events_socket_is_private_replaces_a_stale_file_and_publishes_by_key
         zctx.term()
 
 
+def test_the_events_socket_hands_over_every_subscription_even_a_repeated_one(tmp_path):
+    """Verbose: the ROS worker confirms each subscription (ipc/events.py), so it must see each one."""
+    zctx = zmq.Context()
+    try:
+        pub = bind_publisher(zctx, str(tmp_path))
+        subs = []
+        for _ in range(2):  # two HTTP workers watching the same trigger
+            sub = zctx.socket(zmq.SUB)
+            sub.setsockopt(zmq.LINGER, 0)
+            sub.setsockopt(zmq.SUBSCRIBE, b"t|e|trig_1|")
+            sub.connect(events.endpoint(str(tmp_path)))
+            subs.append(sub)
+        got = [pub.recv() if pub.poll(5000) else None for _ in range(2)]
+        assert got == [b"\x01t|e|trig_1|"] * 2
+        pub.send_multipart([b"t|e|trig_1|"])  # the confirmation: both have the subscription in place
+        assert [s.recv_multipart() if s.poll(5000) else None for s in subs] == [[b"t|e|trig_1|"]] * 2
+        for sub in subs:
+            sub.close()
+        pub.close()
+    finally:
+        zctx.term()
+
+
 # ---------------------------------------------------------------- ControlServer
 
 

@@ -269,6 +269,34 @@ def test_a_pooled_topic_gets_one_frame_a_tick_however_many_subscriptions_watch_i
     assert s.stats.frames_published >= 4
 
 
+def test_each_subscription_is_confirmed_and_what_is_sent_after_the_confirmation_arrives(streams):
+    key = events.trigger_event_key("trig_00000000000000aa")
+    before = streams.stats.subscriptions_confirmed
+    subs = []
+    try:
+        for _ in range(2):  # the second subscriber of a key is confirmed too (and the first again)
+            sub = streams.ros.zctx.socket(zmq.SUB)
+            sub.setsockopt(zmq.LINGER, 0)
+            sub.setsockopt(zmq.SUBSCRIBE, key)
+            sub.connect(events.endpoint(streams.ros.runtime_dir))
+            subs.append(sub)
+            assert sub.poll(5000), "no confirmation of the subscription"
+            assert sub.recv_multipart() == [key]  # one frame: the subscribed prefix
+        # Sent once, right after the confirmation: every confirmed subscriber has it.
+        streams.ros.call(streams.registry.send, [key, protocol.pack({"seq": 1}), b"{}"])
+        for sub in subs:
+            frames = None
+            while sub.poll(5000):
+                frames = sub.recv_multipart()
+                if len(frames) > 1:
+                    break
+            assert frames == [key, protocol.pack({"seq": 1}), b"{}"]
+        assert streams.stats.subscriptions_confirmed - before == 2
+    finally:
+        for sub in subs:
+            sub.close()
+
+
 def test_a_topic_nobody_publishes_is_answered_from_the_graph_without_asking_the_pool(streams):
     s = streams
     s.create(interval="fast")

@@ -143,6 +143,21 @@ class EventStream:
 
     _returned = 0
 
+    def take(self, count: int, timeout: float) -> list[dict[str, Any]]:
+        """Up to ``count`` events, waiting at most ``timeout`` in all: fewer when they did not come (so an
+        assertion on the list shows which ones are missing)."""
+        until = time.monotonic() + timeout
+        out = []
+        while len(out) < count and (left := until - time.monotonic()) > 0:
+            try:
+                event = self.next(timeout=left)
+            except AssertionError:
+                break
+            if event is None:
+                break
+            out.append(event)
+        return out
+
     def collect(self, seconds: float) -> list[dict[str, Any]]:
         """Every event that arrives within ``seconds`` (the stream may end earlier)."""
         until = time.monotonic() + seconds
