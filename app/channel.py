@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 import time
 
+import gevent
 import gevent.event
 import zmq.green as zmq
 
@@ -23,7 +24,9 @@ from ipc import events, protocol
 
 log = logging.getLogger("sovd.http.channel")
 
-CONFIRM_WAIT = 3.0  # seconds a stream waits for its subscription's confirmation before it opens anyway
+CONFIRM_WAIT = 3.0     # seconds a stream waits for its subscription's confirmation before it opens anyway
+HEARTBEAT_LOST = 3.0   # seconds without a heartbeat before the ROS worker counts as gone
+READ_BATCH = 1000      # messages read in one go before the reader yields to the other greenlets
 
 
 def subscriber(ctx: zmq.Context, *keys: bytes) -> zmq.Socket:
@@ -79,3 +82,95 @@ class Confirmations:
                             "opens anyway, and an event sent before it arrives is lost", key, timeout)
                 return False
         return True
+
+
+class Subscriber:
+    """The events channel as one HTTP worker's hub reads it: a SUB socket subscribed to ``KEYS`` (whose
+    confirmations a stream may wait for), its connection monitor, the ROS worker's heartbeat, and a
+    greenlet that hands every message to :meth:`dispatch` (after noting a confirmation).  A hub adds
+    its own greenlets with :meth:`loops`."""
+
+    KEYS: tuple[bytes, ...] = ()
+    NAME = "events channel"
+
+    def __init__(self, runtime_dir: str):
+        self.runtime_dir = runtime_dir
+        self.connected = False
+        self.heartbeat = 0.0
+        self.confirmations = Confirmations()
+        self._ctx: zmq.Context | None = None
+        self._sock = None
+        self._monitor = None
+        self._greenlets: list[gevent.Greenlet] = []
+
+    def start(self) -> None:
+        self._ctx = zmq.Context()
+        sock = subscriber(self._ctx, *self.KEYS)
+        for key in self.KEYS:
+            self.confirmations.expect(key)
+        self._monitor = sock.get_monitor_socket(zmq.EVENT_CONNECTED | zmq.EVENT_DISCONNECTED)
+        sock.connect(events.endpoint(self.runtime_dir))
+        self._sock = sock
+        self.heartbeat = time.monotonic()  # a grace period for the first heartbeat
+        self._greenlets = [gevent.spawn(self._read), *(gevent.spawn(loop) for loop in self.loops())]
+
+    def loops(self) -> list:
+        return []
+
+    def stop(self) -> None:
+        gevent.killall(self._greenlets, timeout=1)
+        for s in (self._monitor, self._sock):
+            if s is not None:
+                s.close(linger=0)
+        if self._ctx is not None:
+            self._ctx.term()
+        self._sock = self._monitor = self._ctx = None
+
+    @property
+    def worker_up(self) -> bool:
+        return self.connected and time.monotonic() - self.heartbeat <= HEARTBEAT_LOST
+
+    def subscribe(self, key: bytes) -> None:
+        self.confirmations.expect(key)
+        self._sock.setsockopt(zmq.SUBSCRIBE, key)
+
+    def unsubscribe(self, key: bytes) -> None:
+        self.confirmations.forget(key)
+        if self._sock is not None:
+            self._sock.setsockopt(zmq.UNSUBSCRIBE, key)
+
+    def dispatch(self, frames: list[bytes]) -> None:
+        raise NotImplementedError
+
+    def _read(self) -> None:
+        poller = zmq.Poller()
+        poller.register(self._sock, zmq.POLLIN)
+        poller.register(self._monitor, zmq.POLLIN)
+        seen = self.confirmations.seen
+        while True:
+            try:
+                ready = dict(poller.poll(1000))
+                if self._monitor in ready:
+                    self._monitor_event()
+                if self._sock in ready:
+                    for _ in range(READ_BATCH):
+                        try:
+                            frames = self._sock.recv_multipart(zmq.NOBLOCK, copy=True)
+                        except zmq.Again:
+                            break
+                        seen(frames[0])
+                        self.dispatch(frames)
+            except gevent.GreenletExit:
+                raise
+            except Exception:  # a malformed frame must not end the reader
+                log.exception("%s: could not handle a frame", self.NAME)
+
+    def _monitor_event(self) -> None:
+        from zmq.utils.monitor import parse_monitor_message
+
+        event = parse_monitor_message(self._monitor.recv_multipart())["event"]
+        if event == zmq.EVENT_CONNECTED:
+            self.connected = True
+        elif event == zmq.EVENT_DISCONNECTED:
+            self.connected = False
+            self.confirmations.lost()

@@ -31,7 +31,6 @@ from typing import Any
 import gevent
 import gevent.event
 import orjson
-import zmq.green as zmq
 
 from common.process import PerProcess
 from ipc import events, protocol
@@ -135,42 +134,31 @@ def _gone(sock: Any) -> bool:
         return True
 
 
-class FaultHub:
+class FaultHub(channel.Subscriber):
+    KEYS = (events.FAULT_KEY,)
+    NAME = "fault events"
+
     def __init__(self, runtime_dir: str, send_timeout: float):
-        self.runtime_dir = runtime_dir
+        super().__init__(runtime_dir)
         self.send_timeout = send_timeout
         self.streams: set[FaultStream] = set()
-        self.confirmations = channel.Confirmations()
-        self._ctx = zmq.Context()
-        sock = channel.subscriber(self._ctx, events.FAULT_KEY)
-        self.confirmations.expect(events.FAULT_KEY)
-        sock.connect(events.endpoint(runtime_dir))
-        self._sock = sock
-        self._reader = gevent.spawn(self._read)
 
-    def stop(self) -> None:
-        self._reader.kill(timeout=1)
-        self._sock.close(linger=0)
-        self._ctx.term()
+    def dispatch(self, frames: list[bytes]) -> None:
+        if len(frames) < 2 or frames[0] != events.FAULT_KEY:
+            return
+        event = protocol.unpack(frames[1], protocol.MAX_REPLY_FRAME)
+        event_id = event.get("id")
+        if not isinstance(event_id, int):
+            return
+        frame = chunk(event_id, event)
+        for stream in list(self.streams):
+            stream.push(event_id, frame)
 
-    def _read(self) -> None:
-        while True:
-            try:
-                frames = self._sock.recv_multipart()
-                self.confirmations.seen(frames[0])
-                if len(frames) < 2 or frames[0] != events.FAULT_KEY:
-                    continue
-                event = protocol.unpack(frames[1], protocol.MAX_REPLY_FRAME)
-                event_id = event.get("id")
-                if not isinstance(event_id, int):
-                    continue
-                frame = chunk(event_id, event)
-                for stream in list(self.streams):
-                    stream.push(event_id, frame)
-            except gevent.GreenletExit:
-                raise
-            except Exception:  # a malformed frame must not end the reader
-                log.exception("fault events: could not handle a frame")
+
+def _started(runtime_dir: str, send_timeout: float) -> FaultHub:
+    made = FaultHub(runtime_dir, send_timeout)
+    made.start()
+    return made
 
 
 _HUBS: dict[str, PerProcess[FaultHub]] = {}
@@ -179,5 +167,5 @@ _HUBS: dict[str, PerProcess[FaultHub]] = {}
 def hub(runtime_dir: str, send_timeout: float) -> FaultHub:
     per_process = _HUBS.get(runtime_dir)
     if per_process is None:
-        per_process = _HUBS[runtime_dir] = PerProcess(lambda: FaultHub(runtime_dir, send_timeout), FaultHub.stop)
+        per_process = _HUBS[runtime_dir] = PerProcess(lambda: _started(runtime_dir, send_timeout), FaultHub.stop)
     return per_process.get()

@@ -79,7 +79,6 @@ STREAM_BUFFER_BYTES = 1 << 20
 STREAM_SNDBUF = 128 * 1024
 KEEPALIVE = 15.0           # seconds of silence before a ":" comment line
 TICK = 0.05                # seconds between the ticker's rounds
-HEARTBEAT_LOST = 3.0       # seconds without a heartbeat before the ROS worker counts as gone
 LOOKUP_TIMEOUT = 0.5       # seconds a silent stream's sub_get may take (a type_info fetch: 4 times this)
 SILENT_CHECK = 2.0         # seconds without frames (worker up) before a stream's subscription is looked up
 EXPIRY_SLACK = 1.0         # seconds an expiry from sub_get may differ from a stream's before it is applied
@@ -274,11 +273,15 @@ class Stream:
             hub.close(self)
 
 
-class StreamHub:
+class StreamHub(channel.Subscriber):
+    # Frames come every tick: a subscription that takes a moment to arrive costs one tick, so this
+    # hub's streams do not wait for confirmations (app/channel.py) as the event streams do.
+    KEYS = (events.CONTROL_KEY, events.HEARTBEAT_KEY)
+
     def __init__(self, runtime_dir: str, lookup: Callable[[Stream], dict[str, Any]],
                  stopping: Callable[[], bool] = lambda: False,
                  send_timeout: float = 30.0):
-        self.runtime_dir = runtime_dir
+        super().__init__(runtime_dir)
         self.send_timeout = send_timeout
         self._lookup = lookup                  # a stream's subscription from the ROS worker (IpcError)
         self._stopping = stopping              # true once this HTTP worker is shutting down
@@ -288,12 +291,6 @@ class StreamHub:
         self.prom = metrics.http()             # the same, as /metrics and /health sum them (app/metrics.py)
         self._flushed = {"frames_sent": 0, "frames_dropped": 0}  # counted into ``prom`` so far (per tick)
         self.sending: set[Stream] = set()      # direct streams in a blocking write (the ticker's deadline)
-        self.connected = False
-        self.heartbeat = 0.0
-        self._ctx: zmq.Context | None = None
-        self._sock = None
-        self._monitor = None
-        self._greenlets: list[gevent.Greenlet] = []
         self._next_scan = 0.0
         self._last_payload: dict[tuple[bytes, str], tuple[float, bytes]] = {}
         # x-medkit.type_info of a frame, as a GET has it: ``type_info`` answers from the process's
@@ -302,29 +299,8 @@ class StreamHub:
         self.warm: Callable[[str], None] = lambda _topic: None
 
     # ---- lifecycle ------------------------------------------------------------------------
-    def start(self) -> None:
-        self._ctx = zmq.Context()
-        # Frames come every tick: a subscription that takes a moment to arrive costs one tick, so
-        # this hub does not wait for confirmations (app/channel.py) as the event streams do.
-        sock = channel.subscriber(self._ctx, events.CONTROL_KEY, events.HEARTBEAT_KEY)
-        self._monitor = sock.get_monitor_socket(zmq.EVENT_CONNECTED | zmq.EVENT_DISCONNECTED)
-        sock.connect(events.endpoint(self.runtime_dir))
-        self._sock = sock
-        self.heartbeat = time.monotonic()  # a grace period for the first heartbeat
-        self._greenlets = [gevent.spawn(self._read), gevent.spawn(self._tick)]
-
-    def stop(self) -> None:
-        gevent.killall(self._greenlets, timeout=1)
-        for s in (self._monitor, self._sock):
-            if s is not None:
-                s.close(linger=0)
-        if self._ctx is not None:
-            self._ctx.term()
-        self._sock = self._monitor = self._ctx = None
-
-    @property
-    def worker_up(self) -> bool:
-        return self.connected and time.monotonic() - self.heartbeat <= HEARTBEAT_LOST
+    def loops(self) -> list:
+        return [self._tick]
 
     # ---- streams ----------------------------------------------------------------------------
     def register(self, stream: Stream) -> None:
@@ -373,38 +349,8 @@ class StreamHub:
             for stream in list(streams):
                 stream.end(last(stream))
 
-    # ---- the reader -------------------------------------------------------------------------
-    def _read(self) -> None:
-        poller = zmq.Poller()
-        poller.register(self._sock, zmq.POLLIN)
-        poller.register(self._monitor, zmq.POLLIN)
-        while True:
-            try:
-                ready = dict(poller.poll(1000))
-                if self._monitor in ready:
-                    self._monitor_event()
-                if self._sock in ready:
-                    for _ in range(1000):
-                        try:
-                            frames = self._sock.recv_multipart(zmq.NOBLOCK, copy=True)
-                        except zmq.Again:
-                            break
-                        self._dispatch(frames)
-            except gevent.GreenletExit:
-                raise
-            except Exception:  # a malformed frame must not end the reader
-                log.exception("events channel: could not handle a frame")
-
-    def _monitor_event(self) -> None:
-        from zmq.utils.monitor import parse_monitor_message
-
-        event = parse_monitor_message(self._monitor.recv_multipart())["event"]
-        if event == zmq.EVENT_CONNECTED:
-            self.connected = True
-        elif event == zmq.EVENT_DISCONNECTED:
-            self.connected = False
-
-    def _dispatch(self, frames: list[bytes]) -> None:
+    # ---- the reader (channel.Subscriber's greenlet) -------------------------------------------
+    def dispatch(self, frames: list[bytes]) -> None:
         key = frames[0]
         if key.startswith(events.DATA_PREFIX):
             if len(frames) == 3:

@@ -38,7 +38,6 @@ from typing import Any
 import gevent
 import gevent.event
 import orjson
-import zmq.green as zmq
 from flask import Flask, current_app
 
 from common.process import PerProcess
@@ -47,7 +46,6 @@ from ipc.errors import IpcError
 
 from . import channel, metrics, rosclient
 from .streams import (
-    HEARTBEAT_LOST,
     KEEPALIVE,
     STREAM_BUFFER_BYTES,
     STREAM_SNDBUF,
@@ -163,52 +161,29 @@ class TriggerStream:
             hub.close(self)
 
 
-class TriggerHub:
+class TriggerHub(channel.Subscriber):
+    KEYS = (events.TRIGGER_CONTROL_PREFIX, events.HEARTBEAT_KEY)
+    NAME = "events channel (triggers)"
+
     def __init__(self, runtime_dir: str, lookup: Callable[[TriggerStream, bool], dict[str, Any]],
                  stopping: Callable[[], bool] = lambda: False, send_timeout: float = 30.0):
-        self.runtime_dir = runtime_dir
+        super().__init__(runtime_dir)
         self.send_timeout = send_timeout
         self._lookup = lookup           # (stream, open) -> trig_get / trig_open answer (IpcError)
         self._stopping = stopping
         self.by_id: dict[str, set[TriggerStream]] = {}
         self.dropped = 0
         self.prom = metrics.http()
-        self.connected = False
-        self.heartbeat = 0.0
-        self.confirmations = channel.Confirmations()
-        self._ctx = self._sock = self._monitor = None
-        self._greenlets: list[gevent.Greenlet] = []
 
-    def start(self) -> None:
-        self._ctx = zmq.Context()
-        sock = channel.subscriber(self._ctx, events.TRIGGER_CONTROL_PREFIX, events.HEARTBEAT_KEY)
-        self.confirmations.expect(events.TRIGGER_CONTROL_PREFIX)
-        self._monitor = sock.get_monitor_socket(zmq.EVENT_CONNECTED | zmq.EVENT_DISCONNECTED)
-        sock.connect(events.endpoint(self.runtime_dir))
-        self._sock = sock
-        self.heartbeat = time.monotonic()
-        self._greenlets = [gevent.spawn(self._read), gevent.spawn(self._tick)]
-
-    def stop(self) -> None:
-        gevent.killall(self._greenlets, timeout=1)
-        for s in (self._monitor, self._sock):
-            if s is not None:
-                s.close(linger=0)
-        if self._ctx is not None:
-            self._ctx.term()
-        self._sock = self._monitor = self._ctx = None
-
-    @property
-    def worker_up(self) -> bool:
-        return self.connected and time.monotonic() - self.heartbeat <= HEARTBEAT_LOST
+    def loops(self) -> list:
+        return [self._tick]
 
     # ---- streams --------------------------------------------------------------------------------
     def register(self, stream: TriggerStream) -> None:
         streams = self.by_id.get(stream.id)
         if streams is None:
             streams = self.by_id[stream.id] = set()
-            self.confirmations.expect(stream.key)
-            self._sock.setsockopt(zmq.SUBSCRIBE, stream.key)
+            self.subscribe(stream.key)
         streams.add(stream)
         self.prom.streams_open.inc()
 
@@ -234,40 +209,11 @@ class TriggerHub:
         self.prom.streams_open.dec()
         if not streams:
             del self.by_id[stream.id]
-            self.confirmations.forget(stream.key)
-            if self._sock is not None:
-                self._sock.setsockopt(zmq.UNSUBSCRIBE, stream.key)
+            self.unsubscribe(stream.key)
 
-    # ---- the reader -----------------------------------------------------------------------------
-    def _read(self) -> None:
-        poller = zmq.Poller()
-        poller.register(self._sock, zmq.POLLIN)
-        poller.register(self._monitor, zmq.POLLIN)
-        while True:
-            try:
-                ready = dict(poller.poll(1000))
-                if self._monitor in ready:
-                    from zmq.utils.monitor import parse_monitor_message
-
-                    kind = parse_monitor_message(self._monitor.recv_multipart())["event"]
-                    self.connected = kind == zmq.EVENT_CONNECTED
-                    if not self.connected:
-                        self.confirmations.lost()
-                if self._sock in ready:
-                    for _ in range(1000):
-                        try:
-                            frames = self._sock.recv_multipart(zmq.NOBLOCK, copy=True)
-                        except zmq.Again:
-                            break
-                        self._dispatch(frames)
-            except gevent.GreenletExit:
-                raise
-            except Exception:
-                log.exception("events channel (triggers): could not handle a frame")
-
-    def _dispatch(self, frames: list[bytes]) -> None:
+    # ---- the reader (channel.Subscriber's greenlet) ---------------------------------------------
+    def dispatch(self, frames: list[bytes]) -> None:
         key = frames[0]
-        self.confirmations.seen(key)
         if key == events.HEARTBEAT_KEY:
             self.heartbeat = time.monotonic()
             return
