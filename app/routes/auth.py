@@ -15,13 +15,17 @@ from ..errors import ApiError
 from .common import config
 
 
+def authorize_feature(enabled: bool, what: str, flag: str, enables: str) -> None:
+    """403 unless the gateway was started with ``flag`` (``enabled``); then :func:`authorize_change`."""
+    if not enabled:
+        raise ApiError(403, "forbidden", f"{what} is disabled on this gateway",
+                       {"details": f"start the gateway with {flag} to {enables}"})
+    authorize_change()
+
+
 def authorize_publish() -> None:
     """403 unless publishing is on; with an API token, 401 without it and 403 with a wrong one."""
-    cfg = config()
-    if not cfg.allow_publish:
-        raise ApiError(403, "forbidden", "Publishing is disabled on this gateway",
-                       {"details": "start the gateway with --allow-publish to enable PUT"})
-    authorize_change()
+    authorize_feature(config().allow_publish, "Publishing", "--allow-publish", "enable PUT")
 
 
 def authorize_change() -> None:

@@ -101,6 +101,20 @@ def lookup(collection: str, entity_id: str) -> Entity:
     raise ApiError(404, "entity-not-found", "Entity not found", {"entity_id": entity_id})
 
 
+def member_nodes(entity: Entity) -> list[tuple[str, str]]:
+    """``(app id, node fqn)`` of every node behind the entity (an app's own; a component's or function's
+    apps, in app order): whose operations and parameters the entity has."""
+    if entity.collection == "apps":
+        return [(entity.id, entity.x_medkit["ros2"]["node"])]
+    index = rosclient.get().entities()
+    out = []
+    for app_id in entity.app_ids:
+        app = index.get("apps", app_id)
+        if app is not None:
+            out.append((app_id, app.x_medkit["ros2"]["node"]))
+    return out
+
+
 def lookup_owner(collection: str, entity_id: str) -> Entity:
     """The entity whose relation collection is asked for, or medkit's typed 400/404.
 

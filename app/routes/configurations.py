@@ -24,9 +24,9 @@ from ipc.errors import IpcError
 from .. import rosclient
 from ..entities import API_BASE, Entity
 from ..errors import IPC_ANSWERS, ApiError
-from .auth import authorize_change
+from .auth import authorize_feature
 from .bodies import json_object
-from .common import check_entity_id, config, json_response, lookup
+from .common import check_entity_id, config, json_response, lookup, member_nodes
 
 bp = Blueprint("configurations", __name__, url_prefix=API_BASE)
 
@@ -38,24 +38,10 @@ MAX_ARRAY = 100_000           # elements of an array value
 
 def authorize_configure() -> None:
     """403 unless configurations may be changed; then the bearer token (``authorize_change``)."""
-    if not config().allow_configurations:
-        raise ApiError(403, "forbidden", "Changing configurations is disabled on this gateway",
-                       {"details": "start the gateway with --allow-configurations to enable PUT and DELETE "
-                                   "on configurations"})
-    authorize_change()
+    authorize_feature(config().allow_configurations, "Changing configurations", "--allow-configurations",
+                      "enable PUT and DELETE on configurations")
 
 
-def _nodes(entity: Entity) -> list[tuple[str, str]]:
-    """(app id, node fqn) of every node behind the entity, in app order."""
-    if entity.collection == "apps":
-        return [(entity.id, entity.x_medkit["ros2"]["node"])]
-    index = rosclient.get().entities()
-    out = []
-    for app_id in entity.app_ids:
-        app = index.get("apps", app_id)
-        if app is not None:
-            out.append((app_id, app.x_medkit["ros2"]["node"]))
-    return out
 
 
 def _param_id(param_id: str) -> None:
@@ -133,7 +119,7 @@ def _target(entity: Entity, nodes: list[tuple[str, str]], param_id: str) -> tupl
 @bp.get(ENTITY)
 def listing(collection: str, entity_id: str):
     entity = lookup(collection, entity_id)
-    nodes = _nodes(entity)
+    nodes = member_nodes(entity)
     aggregated = len(nodes) > 1
     ext: dict[str, Any] = {"entity_id": entity.id, "source": "runtime",
                            "aggregation_level": entity.type, "is_aggregated": aggregated}
@@ -186,7 +172,7 @@ def listing(collection: str, entity_id: str):
 def read(collection: str, entity_id: str, param_id: str):
     entity = lookup(collection, entity_id)
     _param_id(param_id)
-    nodes = _nodes(entity)
+    nodes = member_nodes(entity)
     if not nodes:
         raise ApiError(404, "resource-not-found", "No nodes available", {"entity_id": entity.id, "id": param_id})
     app_id, name = _address(entity, param_id)
@@ -227,7 +213,7 @@ def write(collection: str, entity_id: str, param_id: str):
         raise ApiError(400, "invalid-request", "Request body must contain a 'data' field")
     _check_value(value)
     entity = lookup(collection, entity_id)
-    _, fqn, source_app, name = _target(entity, _nodes(entity), param_id)
+    _, fqn, source_app, name = _target(entity, member_nodes(entity), param_id)
     result = _ros_call("param_set", {"node": fqn, "name": name, "value": value}, "Failed to set parameter",
                        entity.id, param_id)
     return json_response(_read_value(entity, fqn, param_id, source_app, result))
@@ -250,7 +236,7 @@ def reset(collection: str, entity_id: str, param_id: str):
     authorize_configure()
     entity = lookup(collection, entity_id)
     _param_id(param_id)
-    _, fqn, _, name = _target(entity, _nodes(entity), param_id)
+    _, fqn, _, name = _target(entity, member_nodes(entity), param_id)
     _ros_call("param_reset", {"node": fqn, "name": name}, "Failed to reset parameter", entity.id, param_id)
     return Response(status=204)
 
@@ -259,7 +245,7 @@ def reset(collection: str, entity_id: str, param_id: str):
 def reset_all(collection: str, entity_id: str):
     authorize_configure()
     entity = lookup(collection, entity_id)
-    nodes = _nodes(entity)
+    nodes = member_nodes(entity)
     if not nodes:
         return Response(status=204)
     result = _call("param_reset_all", {"nodes": [fqn for _, fqn in nodes]}, len(nodes))

@@ -26,9 +26,9 @@ from ipc.errors import IpcError
 from .. import rosclient
 from ..entities import API_BASE, Entity
 from ..errors import ApiError
-from .auth import authorize_change
+from .auth import authorize_feature
 from .bodies import json_object
-from .common import check_entity_id, config, json_response, lookup
+from .common import check_entity_id, config, json_response, lookup, member_nodes
 
 bp = Blueprint("operations", __name__, url_prefix=API_BASE)
 
@@ -73,24 +73,10 @@ class Operation:
 
 def authorize_operations() -> None:
     """403 unless operations are on; with an API token, 401 without it and 403 with a wrong one."""
-    if not config().allow_operations:
-        raise ApiError(403, "forbidden", "Operations are disabled on this gateway",
-                       {"details": "start the gateway with --allow-operations to call services and "
-                                   "run actions"})
-    authorize_change()
+    authorize_feature(config().allow_operations, "Operations", "--allow-operations",
+                      "call services and run actions")
 
 
-def _members(entity: Entity) -> list[tuple[str, str]]:
-    """``(app id, node fqn)`` of the apps whose operations the entity has."""
-    if entity.collection == "apps":
-        return [(entity.id, entity.x_medkit["ros2"]["node"])]
-    index = rosclient.get().entities()
-    out = []
-    for app_id in entity.app_ids:
-        app = index.get("apps", app_id)
-        if app is not None:
-            out.append((app_id, app.x_medkit["ros2"]["node"]))
-    return out
 
 
 def _op_list(nodes: list[str], with_info: bool) -> dict[str, Any]:
@@ -111,7 +97,7 @@ def _op_list(nodes: list[str], with_info: bool) -> dict[str, Any]:
 
 
 def operations_of(entity: Entity, with_info: bool = True) -> list[Operation]:
-    members = _members(entity)
+    members = member_nodes(entity)
     by_node = _op_list([fqn for _, fqn in members], with_info)
     ops: list[Operation] = []
     for member, fqn in members:
@@ -137,7 +123,7 @@ def resolve(entity: Entity, op_id: str, with_info: bool = True) -> Operation:
     member, item = None, op_id
     if entity.aggregated and ":" in op_id:
         member, _, item = op_id.partition(":")
-        if member not in {m for m, _ in _members(entity)}:
+        if member not in {m for m, _ in member_nodes(entity)}:
             raise ApiError(404, "resource-not-found", "Member not found in entity",
                            {"entity_id": entity.id, "operation_id": op_id, "member_id": member})
     matches = [o for o in ops if item in (o.name, o.path_id) and (member is None or o.member == member)]

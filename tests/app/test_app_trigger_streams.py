@@ -285,6 +285,13 @@ def first_event(topic: Topic, stream: EventStream, values: list[float], rounds: 
     raise AssertionError(f"no event after {rounds * len(values)} messages")
 
 
+def listed(gw: Gateway, base: str) -> list[dict]:
+    """The app's triggers, once a new ROS worker's graph poll has found the app again (404 before)."""
+    answer = poll_until(lambda: (r := gw.get(base)).status_code == 200 and r, 30,
+                        message=f"{base} listed by a new ROS worker")
+    return answer.json()["items"]
+
+
 def test_triggers_survive_a_ros_worker_sigkill_and_persistent_ones_a_gateway_restart():
     runtime_dir = tempfile.mkdtemp(prefix="sovd-trig-")
     os.chmod(runtime_dir, 0o700)
@@ -300,7 +307,7 @@ def test_triggers_survive_a_ros_worker_sigkill_and_persistent_ones_a_gateway_res
         os.kill(old, signal.SIGKILL)
         poll_until(lambda: gw.rosworker_pid() != old and gw.get("/health").json()[
             "x-medkit-subscription-executor"]["worker_alive"], 30, message="the ROS worker restarted")
-        ids = {t["id"] for t in gw.get(topic.base).json()["items"]}
+        ids = {t["id"] for t in listed(gw, topic.base)}
         assert ids == {kept["id"], lost["id"]}  # a worker restart keeps them all
         with EventStream(gw.port, kept["event_source"]) as stream:
             # The killed worker's subscription stays matched for a while (DDS), so a first message
@@ -308,7 +315,7 @@ def test_triggers_survive_a_ros_worker_sigkill_and_persistent_ones_a_gateway_res
             assert first_event(topic, stream, [4.0, 4.5, 4.25])["payload"]["data"] in (4.0, 4.5, 4.25)
         gw.stop()
         gw = Gateway("--workers", "2", "--log-level", "warning", runtime_dir=runtime_dir)
-        items = gw.get(topic.base).json()["items"]
+        items = listed(gw, topic.base)
         assert [t["id"] for t in items] == [kept["id"]]  # a new gateway: the persistent one only
         assert items[0]["lifetime"] == 600 and items[0]["trigger_condition"] == {"condition_type": "OnChange"}
         with EventStream(gw.port, kept["event_source"]) as stream:

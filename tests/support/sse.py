@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import socket
+import sys
 import time
 from typing import Any
 
@@ -160,17 +161,7 @@ class EventStream:
 
     def collect(self, seconds: float) -> list[dict[str, Any]]:
         """Every event that arrives within ``seconds`` (the stream may end earlier)."""
-        until = time.monotonic() + seconds
-        out = []
-        while (left := until - time.monotonic()) > 0:
-            try:
-                event = self.next(timeout=left)
-            except AssertionError:
-                break
-            if event is None:
-                break
-            out.append(event)
-        return out
+        return self.take(sys.maxsize, seconds)
 
     def ended(self, timeout: float) -> bool:
         """Read until the stream ends (True) or ``timeout`` passes (False)."""
