@@ -353,9 +353,15 @@ class FaultManager:
         if record["severity"] != severity or record["description"] != message:
             changed = changed or record["status"] == CONFIRMED
             record["severity"], record["description"] = severity, message
-        if source not in record["sources"] and len(record["sources"]) < SOURCES_MAX:
-            record["sources"] = [*record["sources"], source]
-            changed = True
+        if source not in record["sources"]:
+            if record["sources"] == [TOPIC] and source != TOPIC:
+                # The first reports came before the graph knew their node (DDS delivers a status
+                # before the node's name is discovered): the node replaces the topic as the source.
+                record["sources"] = [source]
+                changed = True
+            elif len(record["sources"]) < SOURCES_MAX:
+                record["sources"] = [*record["sources"], source]
+                changed = True
         record["last_ns"] = wall
         record["name"] = name
         if values is not None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import sqlite3
 import time
+import types
 
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -100,6 +101,18 @@ def test_confirmed_by_count_healed_by_count_and_a_new_occurrence(make):
     # confirmed; then PREPASSED, CONFIRMED again, PREPASSED, HEALED: each an update of a confirmed fault
     assert kinds == ["fault_confirmed"] + ["fault_updated"] * 4
     assert all(frames[0] == events.FAULT_KEY for frames in m.sent)
+
+
+def test_a_node_found_after_the_first_report_replaces_the_topic_as_its_source(make):
+    m = make(confirm_count=3, confirm_s=3600, heal_count=2)
+    m.on_array(array(("drive: motor", 2)))       # the graph does not know the node yet: the topic stands in
+    assert m.faults["DRIVE_MOTOR"]["sources"] == ["/diagnostics"]
+    m.graph = types.SimpleNamespace(nodes=["/fleet/drive"])
+    m.on_array(array(("drive: motor", 2)))
+    assert m.faults["DRIVE_MOTOR"]["sources"] == ["/fleet/drive"]
+    m.graph = types.SimpleNamespace(nodes=[])    # not found again: a real source is never replaced
+    m.on_array(array(("drive: motor", 2)))
+    assert m.faults["DRIVE_MOTOR"]["sources"] == ["/fleet/drive", "/diagnostics"]
 
 
 def test_confirmed_by_time_when_reports_are_rare(make):
