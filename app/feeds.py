@@ -58,13 +58,14 @@ def _execution(rest: str, entity: Entity, resource: str) -> dict[str, Any]:
 
 
 def _parameter(rest: str, entity: Entity, resource: str) -> dict[str, Any]:
-    from .routes.configurations import _address, _nodes, _param_id, _ros_call
+    from .routes.common import member_nodes
+    from .routes.configurations import _address, _param_id, _ros_call
 
     param_id = unquote(rest[1:]) if rest.startswith("/") else ""
     if not param_id or "/" in rest[1:]:
         raise _invalid(resource, f"a parameter is streamed as {PARAMETER_PATH}")
     _param_id(param_id)
-    nodes = _nodes(entity)
+    nodes = member_nodes(entity)
     if not nodes:
         raise ApiError(404, "resource-not-found", "No nodes available", {"entity_id": entity.id, "id": param_id})
     app_id, name = _address(entity, param_id)
