@@ -336,7 +336,8 @@ class ParameterClients:
         self.own_fqn = (ns.rstrip("/") + "/" + node.get_name()) if ns != "/" else "/" + node.get_name()
         self._nodes: collections.OrderedDict[str, NodeClients] = collections.OrderedDict()
         self._ops: set[Op] = set()
-        self._unavailable: dict[str, float] = {}   # fqn -> monotonic time until which it is answered at once
+        # fqn -> (monotonic time until which it is answered at once, the start key of the node that did not answer)
+        self._unavailable: dict[str, tuple[float, Any]] = {}
         self._records: collections.OrderedDict[str, Record] = collections.OrderedDict()
         self._events = None
         # cyclic subscriptions on parameters (rosworker/feeds.py): called with each /parameter_events message
@@ -376,7 +377,7 @@ class ParameterClients:
             if clients.used < cutoff and not clients.open_calls():
                 self._destroy(fqn)
         now = time.monotonic()
-        for fqn in [f for f, until in self._unavailable.items() if until <= now]:
+        for fqn in [f for f, (until, _) in self._unavailable.items() if until <= now]:
             del self._unavailable[fqn]
         self._gauges()
 
@@ -390,8 +391,12 @@ class ParameterClients:
     def run(self, fqn: str, gen: Operation, done: Callable[[Any], None]) -> None:
         """Start one operation on ``fqn``; ``done`` gets its result or an IpcError (maybe at once)."""
         self._drain_events()
-        until = self._unavailable.get(fqn)
+        cached = self._unavailable.get(fqn)
         now = time.monotonic()
+        if cached is not None and cached[1] != self._start_key(fqn):
+            del self._unavailable[fqn]  # the node started again since it did not answer: ask this one
+            cached = None
+        until = cached[0] if cached is not None else None
         if until is not None and until > now and fqn != self.own_fqn:
             gen.close()
             done(IpcError("node-unavailable",
@@ -643,7 +648,7 @@ class ParameterClients:
 
     def _timed_out(self, op: Op) -> None:
         self.stats.parameter_timeouts += 1
-        self._unavailable[op.fqn] = time.monotonic() + self.negative_cache_s
+        self._unavailable[op.fqn] = (time.monotonic() + self.negative_cache_s, self._start_key(op.fqn))
         what = "did not respond" if op.sent else "was not available"
         log.warning("parameter service of %s %s within %g s (answered at once for %g s)", op.fqn, what,
                     self.timeout, self.negative_cache_s)

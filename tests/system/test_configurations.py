@@ -316,6 +316,26 @@ def test_reset_all_names_a_node_that_does_not_answer(gw):
     assert stuck["success"] is False and "/mix/stuck" in stuck["error"]
 
 
+def test_a_node_started_again_is_asked_again_though_it_is_remembered_as_unavailable(gw):
+    spec = {"node": "revived", "namespace": "/cfgrev", "params": [{"name": "z", "value": 4}]}
+    base = "/apps/revived/configurations/z"
+    node = ParamNode({**spec, "hang": True})
+    try:
+        poll_until(lambda: gw.get("/apps/revived").status_code == 200, 20, message="revived as an app")
+        assert gw.get(base).status_code == 503   # it did not answer: remembered for 30 s (the module's gateway)
+        started = time.monotonic()
+        assert gw.get(base).status_code == 503 and time.monotonic() - started < TIMEOUT  # at once: cached
+    finally:
+        node.stop()
+    node = ParamNode(spec)  # the same node started again, well inside those 30 s
+    try:
+        got = poll_until(lambda: (r := gw.get(base)).status_code == 200 and r, 20,
+                         message="the new start asked although the old one is remembered")
+        assert got.json()["data"] == 4
+    finally:
+        node.stop()
+
+
 def test_a_restarted_node_is_a_new_record(gw):
     spec = {"node": "phoenix", "namespace": "/cfgphx", "params": [{"name": "v", "value": 1}]}
     base = "/apps/phoenix/configurations/v"
