@@ -46,6 +46,10 @@ def test_a_fault_appears_changes_and_is_cleared_without_a_reload(browser):
         expect(row.locator(".sev")).to_have_class("sev sev-WARN")
         expect(row).to_contain_text("charge low")
         expect(row).to_contain_text("×1")
+        # The detail is read through the host component, which holds the fault once the gateway's
+        # graph knows its node (the status itself may come first).
+        poll_until(lambda: gw.get(f"/components/{gw.host()}/faults/UI_BATTERY_BATTERY").status_code == 200, 20,
+                   message="the fault in the host component's scope")
         row.locator(".fault-head").click()
         expect(row.locator(".snapshot pre")).to_contain_text('"charge_percent": "12"')
         pub.set([{"name": "ui_battery: Battery", "level": 0, "message": "ok"}])
