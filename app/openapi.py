@@ -541,15 +541,17 @@ def _trigger_paths(collection: str) -> dict[str, Any]:
     params = [_id_param(collection)]
     not_found = ("404", "Unknown entity (`entity-not-found`) or trigger (`resource-not-found`, `Trigger not "
                         "found`, parameters `trigger_id`)")
-    bad = ("400", "A missing or invalid field, condition, JSON Pointer or lifetime, an unknown or not "
-                  "observable collection, a range condition without `path` on faults or logs "
+    bad = ("400", "A missing or invalid field, condition, JSON Pointer or lifetime, a `target_value` of more "
+                  "than 4096 bytes of JSON (parameters `max_bytes`) or a `path` of more than 1024 characters, "
+                  "an unknown or not observable collection, a range condition without `path` on faults or logs "
                   "(`invalid-parameter`, parameters `parameter`), a malformed resource "
                   "(`x-medkit-invalid-resource-uri`) or one of another entity (`x-medkit-entity-mismatch`)")
     unauthorized = ("401", "An API token is configured and the request has none (`unauthorized`)")
     forbidden = ("403", "An API token is configured and the request's is wrong (`forbidden`)")
     token = {"security": [{"bearerAuth": []}, {}]}
-    full = ("503", "At the max_triggers cap, or this client's max_triggers_per_client cap "
-                   "(`service-unavailable`), or the ROS worker is away; retry after `Retry-After` seconds")
+    full = ("503", "At the max_triggers cap, this client's max_triggers_per_client cap, or the "
+                   "max_trigger_bytes cap of what all triggers hold (`service-unavailable`), or the ROS worker "
+                   "is away; retry after `Retry-After` seconds")
     created = {"description": "Created", "headers": {"Location": {"schema": STR}},
                "content": {"application/json": {"schema": ref("Trigger")}}}
     create = _op(f"create{title}Trigger", "Triggers", f"Watch a data item, the faults or the logs of a "
@@ -1021,6 +1023,7 @@ def _document() -> dict[str, Any]:
                  {"name": "Subscriptions", "description": "Cyclic subscriptions: live data over SSE"},
                  {"name": "Operations", "description": "ROS 2 services and actions (operations: services "
                                                        "and actions)"},
+                 {"name": "Configuration", "description": "ROS 2 parameters of the nodes (configurations)"},
                  {"name": "Logs", "description": "The robot's /rosout, per entity (issue 22)"},
                  {"name": "Triggers", "description": "Condition triggers: events over SSE"},
                  {"name": "Faults", "description": "The robot's /diagnostics as SOVD faults (issue 22)"},

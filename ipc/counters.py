@@ -207,6 +207,10 @@ COUNTERS: tuple[Counter, ...] = (
     C("streams", "active_triggers", GAUGE, "Triggers active now", "sovd_ros_triggers"),
     C("streams", "max_triggers", GAUGE, "Most triggers held at once (max_triggers)", "sovd_ros_triggers_cap",
       setting="max_triggers"),
+    C("streams", "trigger_bytes", GAUGE, "Bytes of the records of the triggers held (at most max_trigger_bytes)",
+      "sovd_ros_trigger_bytes"),
+    C("streams", "max_trigger_bytes", GAUGE, "Byte cap of the triggers held (max_trigger_bytes)",
+      "sovd_ros_trigger_bytes_cap", setting="max_trigger_bytes"),
     C("streams", "triggers_created", COUNTER, "Triggers created", "sovd_ros_triggers_created"),
     C("streams", "trigger_messages", COUNTER, "Messages of watched topics taken and evaluated (one per "
       "message, however many triggers watch the topic)", "sovd_ros_trigger_messages"),

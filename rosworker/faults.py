@@ -210,9 +210,9 @@ class FaultManager:
             return
         self.executor.call_later(TAKE_EVERY, self._take_round)
 
-    def shutdown(self, timeout: float) -> None:
+    def shutdown(self) -> None:
+        """Hand what is not written yet to the store (which the caller closes) and unsubscribe."""
         self._flush(force=True)
-        self.store.close(timeout)
         if self.sub is not None:
             self.node.destroy_subscription(self.sub)
             self.sub = None

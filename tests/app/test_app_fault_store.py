@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import signal
 import sqlite3
+import stat
 import tempfile
 import threading
 
@@ -179,5 +180,35 @@ def test_clearing_is_off_by_default(state_dir, diag):
             assert r.status_code == 403 and r.json()["error_code"] == "forbidden", url
             assert "--allow-fault-clear" in r.json()["parameters"]["details"]
         assert faults(gw)["NOCLEAR"]["status"] == "CONFIRMED"
+    finally:
+        gw.stop()
+
+
+def test_the_store_s_files_are_the_service_user_s_alone(tmp_path):
+    """faults.db, its -wal and -shm are 0600 and a state dir the gateway makes is 0700, whatever the umask;
+    a file left 0644 by an older gateway is narrowed."""
+    state_dir = tmp_path / "made-by-the-gateway"
+    old_umask = os.umask(0o022)  # the gateway inherits it (make run, a shell): files would be 0644
+    try:
+        gw = Gateway("--state-dir", str(state_dir))
+    finally:
+        os.umask(old_umask)
+    try:
+        poll_until(lambda: all(os.path.exists(state_dir / f"faults.db{s}") for s in ("", "-wal", "-shm")), 10,
+                   message="the store's files")
+        assert stat.S_IMODE(os.stat(state_dir).st_mode) == 0o700
+        for suffix in ("", "-wal", "-shm"):
+            assert stat.S_IMODE(os.stat(state_dir / f"faults.db{suffix}").st_mode) == 0o600, suffix
+    finally:
+        gw.stop()
+    for suffix in ("", "-wal", "-shm"):  # as an older gateway left them
+        if os.path.exists(state_dir / f"faults.db{suffix}"):
+            os.chmod(state_dir / f"faults.db{suffix}", 0o644)
+    os.chmod(state_dir, 0o755)
+    gw = Gateway("--state-dir", str(state_dir))
+    try:
+        for suffix in ("", "-wal", "-shm"):
+            assert stat.S_IMODE(os.stat(state_dir / f"faults.db{suffix}").st_mode) == 0o600, suffix
+        assert stat.S_IMODE(os.stat(state_dir).st_mode) == 0o755  # not made by the gateway: left as it is
     finally:
         gw.stop()

@@ -89,6 +89,15 @@ def test_schemas_are_valid_json_schema(doc):
     assert doc["openapi"] == "3.1.0"
 
 
+def test_every_tag_an_operation_uses_is_declared(doc):
+    """An OpenAPI tag an operation names is declared once in the top-level ``tags`` (generators group by it)."""
+    declared = [t["name"] for t in doc["tags"]]
+    used = {tag for path in doc["paths"].values() for op in path.values() for tag in op["tags"]}
+    assert len(declared) == len(set(declared))
+    assert used <= set(declared), sorted(used - set(declared))
+    assert "Configuration" in used
+
+
 def test_names_generated_clients_see_are_medkits(doc):
     """The names medkit's published spec gives, which generated clients import."""
     assert doc["info"]["x-sovd-version"] == "1.0.0"

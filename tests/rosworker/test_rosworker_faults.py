@@ -209,11 +209,11 @@ def test_a_failed_write_is_counted_and_retried(tmp_path, monkeypatch):
     real = store._write
     calls = {"n": 0}
 
-    def flaky(faults, events_):
+    def flaky(faults, events_, triggers):
         calls["n"] += 1
         if calls["n"] == 1:
             raise sqlite3.OperationalError("disk I/O error")
-        real(faults, events_)
+        real(faults, events_, triggers)
 
     monkeypatch.setattr(store, "_write", flaky)
     store.put("A", {"code": "A"})
