@@ -81,8 +81,8 @@ def _ros_call(cmd: str, args: dict[str, Any], message: str, entity_id: str, para
     try:
         return _call(cmd, args)
     except IpcError as exc:
-        if exc.code in ("unavailable", "shutdown", "backpressure", "deadline-exceeded", "bad-request",
-                        "unknown-command", "pool-busy"):
+        if exc.code in ("unavailable", "outcome-unknown", "shutdown", "backpressure", "deadline-exceeded",
+                        "bad-request", "unknown-command", "pool-busy"):
             raise ApiError.from_ipc(exc, {"entity_id": entity_id, "id": param_id}) from None
         if exc.code == "no-such-parameter" and message.startswith("Failed to get"):
             message = "Parameter not found"
