@@ -38,9 +38,14 @@ PREFAILED, so that they have a message by then).  ``SNAPSHOTS_MAX`` frames of
 at most ``SNAPSHOT_BYTES`` each per fault.
 
 Events (``fault_confirmed``, ``fault_updated``, ``fault_cleared``) get ids
-that go on across restarts, are kept (``MAX_EVENTS``, also in the store) for
-``Last-Event-ID`` replay, and are published on the events channel
-(``ipc/events.py``, key ``f|``) for the HTTP workers' fault streams.
+that never go backwards: a start's ids begin at its epoch (the wall clock in
+microseconds, or the last stored id + 1 if that is higher) and count up by
+one, so a new start's ids are above every earlier one's even when the store
+is in memory only (an unwritable state dir, a corrupt file moved aside).  They
+stay plain integers (the SSE ``id:``, ``Last-Event-ID``).  Events are kept
+(``MAX_EVENTS``, also in the store) for ``Last-Event-ID`` replay, and are
+published on the events channel (``ipc/events.py``, key ``f|``) for the HTTP
+workers' fault streams.
 """
 
 from __future__ import annotations
@@ -189,8 +194,10 @@ class FaultManager:
                     self.seen[code] = [now, record.get("name", code), (record.get("sources") or [TOPIC])[0], False]
         for event_id, event in events:
             self.events.append((event_id, event))
-        if self.events:
-            self.next_event_id = self.events[-1][0] + 1
+        # The ids of this start begin at its epoch (wall clock, µs), above every id of an earlier
+        # start: a stream that stays open across a ROS worker restart, or a client that reconnects with
+        # Last-Event-ID, never takes a new event for one it has (a store in memory only keeps no ids).
+        self.next_event_id = max(time.time_ns() // 1000, self.events[-1][0] + 1 if self.events else 1)
         self._publish_stats()
 
     def start(self) -> None:

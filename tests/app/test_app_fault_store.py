@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import sqlite3
 import stat
 import tempfile
 import threading
+import time
 
 import pytest
 import requests
@@ -211,4 +213,65 @@ def test_the_store_s_files_are_the_service_user_s_alone(tmp_path):
             assert stat.S_IMODE(os.stat(state_dir / f"faults.db{suffix}").st_mode) == 0o600, suffix
         assert stat.S_IMODE(os.stat(state_dir).st_mode) == 0o755  # not made by the gateway: left as it is
     finally:
+        gw.stop()
+
+
+def _events(response: requests.Response):
+    """The SSE events of a streamed response: ``{"id": int, "event", "data"}`` each, as they come, and
+    None for a comment (a keep-alive: whoever reads can look at the clock)."""
+    current: dict = {}
+    for line in response.iter_lines():
+        line = line.decode() if isinstance(line, bytes) else line
+        if not line:
+            yield current if "data" in current else None
+            current = {}
+        elif not line.startswith(":"):
+            key, _, value = line.partition(":")
+            value = value.strip()
+            current[key] = json.loads(value) if key == "data" else int(value) if key == "id" else value
+
+
+def _until(events, code: str, timeout: float = 40.0) -> dict:
+    deadline = time.monotonic() + timeout
+    for event in events:
+        if event is not None and event["data"]["fault"]["fault_code"] == code:
+            return event
+        if time.monotonic() > deadline:
+            break
+    raise AssertionError(f"no event of {code} within {timeout} s")
+
+
+def test_a_restarted_ros_worker_s_fault_events_reach_an_open_stream_and_a_reconnect_with_no_store(tmp_path, diag):
+    """A store in memory only (an unwritable state dir): the event ids of a new ROS worker must still be
+    above the old one's, or an open stream and a Last-Event-ID reconnect drop them as sent already."""
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    gw = Gateway(*FAST, "--state-dir", str(blocker / "state"))
+    pub = diag("epoch_driver", rate=5)
+    try:
+        assert gw.get("/health").json()["x-medkit-faults"]["store_enabled"] is False
+        with requests.get(f"{gw.api}/faults/stream", stream=True, timeout=30) as stream:
+            events = _events(stream)
+            # six events before the restart; then silence, so that the new worker hears only what follows
+            pub.set([{"name": f"epoch_driver: before {i}", "level": 2, "message": "x"} for i in range(6)])
+            seen = {}
+            while len(seen) < 6:
+                event = next(events)
+                if event is not None:
+                    seen[event["data"]["fault"]["fault_code"]] = event
+            before = max(seen.values(), key=lambda e: e["id"])
+            pub.set([], publish=False)
+            old_pid = gw.rosworker_pid()
+            os.kill(old_pid, signal.SIGKILL)
+            poll_until(lambda: gw.rosworker_pid() != old_pid and gw.get("/health").json()[
+                "x-medkit-subscription-executor"]["worker_alive"], 30, message="the ROS worker restarted")
+            pub.set([{"name": "epoch_driver: after", "level": 2, "message": "y"}])
+            after = _until(events, "EPOCH_DRIVER_AFTER")  # the open stream gets it
+        assert after["id"] > before["id"]
+        with requests.get(f"{gw.api}/faults/stream", stream=True, timeout=30,
+                          headers={"Last-Event-ID": str(before["id"])}) as again:
+            replayed = _until(_events(again), "EPOCH_DRIVER_AFTER")  # a reconnect from before the restart too
+        assert replayed["id"] == after["id"]
+    finally:
+        pub.stop()
         gw.stop()

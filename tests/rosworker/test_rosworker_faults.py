@@ -174,12 +174,28 @@ def test_the_store_keeps_faults_and_event_ids_across_managers(make, tmp_path):
     m.store.close(5)
     again = make()
     assert again.faults["KEPT"]["status"] == "CLEARED" and again.faults["KEPT"]["snapshots"]
-    assert again.next_event_id == last
+    assert again.next_event_id >= last  # never backwards: this start's epoch, or the stored id + 1
     assert [e["event_type"] for e in again.events_after(0)] == ["fault_confirmed", "fault_cleared"]
+    assert [e["id"] for e in again.events_after(0)] == [last - 2, last - 1]
     db = sqlite3.connect(tmp_path / "faults.db")
     assert db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
     assert db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
     db.close()
+
+
+def test_event_ids_never_go_backwards_across_starts_even_with_no_store(tmp_path):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    ids = []
+    for _ in range(3):  # three starts with a store in memory only (an unwritable state dir)
+        m = FaultManager(None, None, Pool(), Stats(), FaultStore(str(blocker / "sub")), confirm_count=1)
+        m.load()
+        assert m.store.enabled is False
+        m.on_array(array(("x", 2)))
+        m.clear(["X"])
+        ids += [e["id"] for e in m.events_after(0)]
+    assert ids == sorted(ids) and len(set(ids)) == len(ids), ids
+    assert all(0 < i < 2**53 for i in ids)  # a plain integer a browser reads exactly
 
 
 def test_a_corrupt_file_is_moved_aside(tmp_path, caplog):
