@@ -913,8 +913,8 @@ SCHEMAS["HealthStatus"]["properties"]["x-medkit-faults"] = {
                    "first answers"}
 _FAULT_QUERY = {"name": "status", "in": "query", "required": False,
                 "schema": {"enum": ["pending", "confirmed", "cleared", "healed", "all"]},
-                "description": "pending (PREFAILED, PREPASSED), confirmed, cleared (CLEARED, HEALED), healed, "
-                               "all; without it the active faults (pending and confirmed)"}
+                "description": "pending (PREFAILED), confirmed, healed (HEALED, PREPASSED), cleared (CLEARED "
+                               "and what healed holds), all; without it pending and confirmed (medkit's)"}
 _FAULT_ERRORS = {
     "400": ("Invalid entity ID, a `status` other than pending, confirmed, cleared, healed or all "
             "(`invalid-parameter`, `Invalid status parameter value`, parameters `allowed_values`, "

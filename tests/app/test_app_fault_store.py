@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import sqlite3
@@ -17,6 +16,7 @@ import requests
 from bench.diagpub import DiagPub
 from tests.support.gateway import Gateway
 from tests.support.procs import poll_until
+from tests.support.sse import sse_events
 
 FAST = ("--fault-confirm-count", "1", "--fault-heal-count", "1", "--fault-stale-s", "0")
 
@@ -216,21 +216,6 @@ def test_the_store_s_files_are_the_service_user_s_alone(tmp_path):
         gw.stop()
 
 
-def _events(response: requests.Response):
-    """The SSE events of a streamed response: ``{"id": int, "event", "data"}`` each, as they come, and
-    None for a comment (a keep-alive: whoever reads can look at the clock)."""
-    current: dict = {}
-    for line in response.iter_lines():
-        line = line.decode() if isinstance(line, bytes) else line
-        if not line:
-            yield current if "data" in current else None
-            current = {}
-        elif not line.startswith(":"):
-            key, _, value = line.partition(":")
-            value = value.strip()
-            current[key] = json.loads(value) if key == "data" else int(value) if key == "id" else value
-
-
 def _until(events, code: str, timeout: float = 40.0) -> dict:
     deadline = time.monotonic() + timeout
     for event in events:
@@ -251,7 +236,7 @@ def test_a_restarted_ros_worker_s_fault_events_reach_an_open_stream_and_a_reconn
     try:
         assert gw.get("/health").json()["x-medkit-faults"]["store_enabled"] is False
         with requests.get(f"{gw.api}/faults/stream", stream=True, timeout=30) as stream:
-            events = _events(stream)
+            events = sse_events(stream)
             # six events before the restart; then silence, so that the new worker hears only what follows
             pub.set([{"name": f"epoch_driver: before {i}", "level": 2, "message": "x"} for i in range(6)])
             seen = {}
@@ -270,7 +255,7 @@ def test_a_restarted_ros_worker_s_fault_events_reach_an_open_stream_and_a_reconn
         assert after["id"] > before["id"]
         with requests.get(f"{gw.api}/faults/stream", stream=True, timeout=30,
                           headers={"Last-Event-ID": str(before["id"])}) as again:
-            replayed = _until(_events(again), "EPOCH_DRIVER_AFTER")  # a reconnect from before the restart too
+            replayed = _until(sse_events(again), "EPOCH_DRIVER_AFTER")  # a reconnect from before the restart too
         assert replayed["id"] == after["id"]
     finally:
         pub.stop()
