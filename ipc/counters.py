@@ -178,7 +178,13 @@ COUNTERS: tuple[Counter, ...] = (
       "sovd_ros_parameter_client_cap", setting="max_parameter_clients"),
     C("details", "parameter_calls_in_flight", GAUGE, "Parameter operations waiting on a node now",
       "sovd_ros_parameter_calls_in_flight"),
+    C("details", "parameter_waiting", GAUGE, "Parameter operations waiting in line for a client set now "
+      "(all max_parameter_clients in flight)", "sovd_ros_parameter_waiting"),
+    C("details", "parameter_waits", COUNTER, "Parameter operations that waited in line for a client set",
+      "sovd_ros_parameter_waits"),
     C("details", "parameter_calls", COUNTER, "Parameter service requests sent", "sovd_ros_parameter_calls"),
+    C("details", "parameter_resends", COUNTER, "Parameter reads sent again after no answer for 0.5 s (a new "
+      "client's first reply may be lost)", "sovd_ros_parameter_resends"),
     C("details", "parameter_timeouts", COUNTER, "Parameter operations a node did not answer in time",
       "sovd_ros_parameter_timeouts"),
     C("details", "parameter_events", COUNTER, "Messages read from /parameter_events",

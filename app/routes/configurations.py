@@ -15,6 +15,7 @@ and, when one is set, the bearer token (``auth.py``).
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from flask import Blueprint, Response
@@ -63,7 +64,10 @@ def _timeout() -> float:
 
 
 def _call(cmd: str, args: dict[str, Any], nodes: int = 1) -> dict[str, Any]:
-    return rosclient.get().call(cmd, args, _timeout() * (1 if nodes <= 1 else 2))
+    """One command; a multi-node one may take a node's time once per ``max_parameter_clients`` nodes (the
+    ROS worker queues the nodes past the cap behind those in flight), and once more."""
+    waves = math.ceil(nodes / config().max_parameter_clients)
+    return rosclient.get().call(cmd, args, _timeout() * (1 if nodes <= 1 else 1 + waves))
 
 
 def _node_error(error: IpcError, message: str, entity_id: str, param_id: str | None = None) -> ApiError:
