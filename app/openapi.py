@@ -71,8 +71,8 @@ X_MEDKIT_ENTITY = {
 # Detail URIs of what the gateway serves, per collection: (required, optional).
 DETAIL_URIS = {
     "areas": (["subareas", "components", "contains", "data"], []),
-    "components": (["data", "subcomponents", "hosts"], []),
-    "apps": (["data"], ["is-located-on", "belongs-to"]),
+    "components": (["status", "data", "subcomponents", "hosts"], []),
+    "apps": (["status", "data"], ["is-located-on", "belongs-to"]),
     "functions": (["hosts", "data"], []),
 }
 # Entity details link the resources (medkit's detail URIs): operations, configurations, faults, logs, triggers.
@@ -409,6 +409,24 @@ def _relation_paths() -> dict[str, Any]:
 
 
 DOC = {"description": "OpenAPI 3.1 document", "content": {"application/json": {"schema": OBJ}}}
+
+
+# GET .../status (app/routes/status.py): medkit's LifecycleStatusResponse; its default path sends the status only.
+SCHEMAS["LifecycleStatusResponse"] = _obj(
+    ["status"], status={"enum": ["ready", "notReady"], "description": "ready: in the graph, and a managed "
+                        "(lifecycle) node in the state active"},
+    start=STR, restart=STR, force__restart=STR, shutdown=STR, force__shutdown=STR)
+
+
+LIFECYCLE_TAG = ("GET .../status: ready or notReady; the transitions (PUT .../status/{transition}) are not "
+                 "implemented: 501 (Lifecycle control not available for this entity)")
+
+
+def _status_paths() -> dict[str, Any]:
+    return {f"/{collection}/{{{PARAM_NAMES[collection]}}}/status": {"get": _op(
+        f"get{_title(collection)}Status", "Lifecycle", f"Whether the {collection[:-1]} is ready: a managed "
+        "(lifecycle) node read through its get_state service", _ok("LifecycleStatusResponse"), "400", "404",
+        "503", "504", parameters=[_id_param(collection)])} for collection in ("apps", "components")}
 
 
 def _docs_paths() -> dict[str, Any]:
@@ -1004,6 +1022,7 @@ def _document() -> dict[str, Any]:
     for collection in ("apps", "components", "functions"):  # triggers (app/routes/triggers.py)
         paths.update(_trigger_paths(collection))
     paths.update(_not_implemented_paths())
+    paths.update(_status_paths())  # GET .../status (the transitions are 501: _not_implemented_paths)
     for collection in ("apps", "components", "functions"):  # logs (issue 22)
         paths.update(_logs_paths(collection))
     paths["/metrics"] = {"get": METRICS_OP}
@@ -1027,7 +1046,8 @@ def _document() -> dict[str, Any]:
                  {"name": "Logs", "description": "The robot's /rosout, per entity (issue 22)"},
                  {"name": "Triggers", "description": "Condition triggers: events over SSE"},
                  {"name": "Faults", "description": "The robot's /diagnostics as SOVD faults (issue 22)"},
-                 *({"name": f.tag, "description": f"Not implemented: 501 ({f.message})"}
+                 *({"name": f.tag, "description": LIFECYCLE_TAG if f.tag == "Lifecycle"
+                    else f"Not implemented: 501 ({f.message})"}
                    for f in unimplemented.FEATURES.values())],
         "paths": paths,
         "components": {

@@ -42,6 +42,7 @@ COMMANDS = (
     # faults (rosworker/faults.py)
     "fault_list", "fault_get", "fault_clear", "fault_events",
     "logs", "log_config_get", "log_config_set",  # logs (issue 22): rosworker/logs.py
+    "lifecycle_state",  # GET .../status: a managed node's state (rosworker/lifecycle.py)
 )
 # Triggers (rosworker/triggers.py).
 COMMANDS += ("trig_create", "trig_list", "trig_get", "trig_update", "trig_delete", "trig_open")

@@ -223,6 +223,9 @@ class Worker:
                                 restore=self.restart)
         commands.handlers.update(operations.handlers)
         operations.repeat(OPERATIONS_CHECK_EVERY)
+        # lifecycle status: managed nodes' get_state, through the operations' service clients
+        from .lifecycle import LifecycleStates
+        commands.handlers.update(LifecycleStates(node, operations.services).handlers)
         # faults: /diagnostics as SOVD faults, kept in the state dir's fault store (rosworker/faults.py)
         from .faults import FaultManager
         from .faults import handlers as fault_handlers
