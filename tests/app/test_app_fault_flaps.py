@@ -13,7 +13,6 @@ import uuid
 import pytest
 import requests
 
-from bench.diagpub import DiagPub
 from tests.support.gateway import Gateway
 from tests.support.procs import poll_until
 from tests.support.sse import sse_events
@@ -29,20 +28,6 @@ def gw():
                       "--debug-commands")
     yield gateway
     gateway.stop()
-
-
-@pytest.fixture
-def diag():
-    started: list[DiagPub] = []
-
-    def make(node: str, rate: float = 2) -> DiagPub:
-        pub = DiagPub(node, "/", rate)
-        started.append(pub)
-        return pub.matched()
-
-    yield make
-    for pub in started:
-        pub.stop()
 
 
 def fault(gw: Gateway, code: str) -> dict | None:

@@ -16,7 +16,6 @@ import requests
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from bench.diagpub import DiagPub
 from tests.support.gateway import BIN, Gateway
 from tests.support.procs import poll_until, publisher
 
@@ -31,20 +30,6 @@ def gw():
                       "--fault-snapshot-topics", "SNAP_*=/snap_temp", "--max-fault-streams", "2")
     yield gateway
     gateway.stop()
-
-
-@pytest.fixture
-def diag():
-    started: list[DiagPub] = []
-
-    def make(node: str, namespace: str = "/", rate: float = 10) -> DiagPub:
-        pub = DiagPub(node, namespace, rate)
-        started.append(pub)
-        return pub.matched()  # the gateway is there: no report is lost to discovery
-
-    yield make
-    for pub in started:
-        pub.stop()
 
 
 def unique(prefix: str) -> tuple[str, str]:

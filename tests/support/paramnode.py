@@ -56,28 +56,17 @@ def _descriptor(item: dict):
 
 def serve_many(spec: dict) -> None:
     """``count`` nodes with parameters in one process (one rclpy context, one executor)."""
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
 
     first, stop = rosmain.start(f"{spec['node']}_0", namespace=spec.get("namespace", "/"))
     nodes = [first] + [Node(f"{spec['node']}_{i}", namespace=spec.get("namespace", "/"))
                        for i in range(1, int(spec["count"]))]
-    executor = SingleThreadedExecutor()
     for i, node in enumerate(nodes):
         node.declare_parameter("index", i)
         for item in spec.get("params", []):
             node.declare_parameter(item["name"], _value(item["value"]), _descriptor(item))
-        executor.add_node(node)
     print("READY", flush=True)
-    try:
-        while not stop.is_set():
-            executor.spin_once(timeout_sec=0.05)
-    finally:
-        for node in nodes:
-            executor.remove_node(node)
-            node.destroy_node()
-        rclpy.try_shutdown()
+    rosmain.spin(first, stop, nodes[1:])
 
 
 def serve(spec: dict) -> None:
