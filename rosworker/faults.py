@@ -273,6 +273,8 @@ class FaultManager:
             for code, seen in list(self.seen.items()):
                 if not seen[3] and now - seen[0] >= self.stale_s:
                     seen[3] = True
+                    if seen[4]:  # its source was a guess: the graph may know the node its name names by now
+                        seen[2], seen[4] = self._source_of(seen[1], "", lambda seen=seen: seen[2])
                     self._failed(code, seen[1], 3, f"stale: no report for {self.stale_s:g} s", seen[2], None,
                                  wall, stale=True, guessed=seen[4])
         self._flush()
@@ -327,18 +329,21 @@ class FaultManager:
     def _source(self, status) -> tuple[str, bool]:
         """``(source, guessed)``: the node the status names (its hardware_id, or the node its name
         starts with), else a guess (the only publisher of /diagnostics, or the topic itself)."""
-        hardware_id = status.hardware_id
+        return self._source_of(status.name, status.hardware_id, self._only_publisher)
+
+    def _source_of(self, name: str, hardware_id: str, guess: Callable[[], str]) -> tuple[str, bool]:
         if "/" in hardware_id:
             return hardware_id[:CODE_MAX], False
-        prefix, sep, _ = status.name.partition(":")
+        prefix, sep, _ = name.partition(":")
         if sep and prefix.strip():
             matches = self._nodes_named(prefix.strip())
             if len(matches) == 1:
                 return matches[0], False
+        return guess(), True
+
+    def _only_publisher(self) -> str:
         publishers = self._diagnostics_publishers()
-        if len(publishers) == 1:
-            return publishers[0], True
-        return TOPIC, True
+        return publishers[0] if len(publishers) == 1 else TOPIC
 
     def _nodes_named(self, name: str) -> list[str]:
         """The graph's nodes called ``name``; asked again (at most every GRAPH_RETRY s) on a miss,

@@ -49,6 +49,12 @@ def wait_status(gw: Gateway, code: str, status: str, timeout: float = 20.0) -> d
     return fault(gw, code)
 
 
+def known(gw: Gateway, app: str) -> None:
+    """Wait until the gateway's graph has the node (under load, discovery may trail a status's first report;
+    the fault then names ``/diagnostics`` until a later report names the node)."""
+    poll_until(lambda: gw.get(f"/apps/{app}").status_code == 200, 30, message=f"app {app}")
+
+
 def failing(name: str, level: int = 2, **extra) -> dict:
     return {"name": name, "level": level, "message": "out of range", **extra}
 
@@ -57,6 +63,7 @@ def failing(name: str, level: int = 2, **extra) -> dict:
 def test_a_failing_status_is_prefailed_then_confirmed_after_three_reports_then_healed(gw, diag):
     name, code = unique("lifecycle_driver")
     pub = diag("lifecycle_driver", rate=0.5)  # one report every 2 s: each state can be seen
+    known(gw, "lifecycle_driver")  # a driver the graph knows: its first report names it
     pub.set([failing(name, values={"temperature": "97"})])
     first = wait_status(gw, code, "PREFAILED")
     assert first["severity"] == 2 and first["severity_label"] == "ERROR" and first["occurrence_count"] == 1
@@ -93,6 +100,7 @@ def test_a_stale_level_is_critical_and_confirmed_at_once(gw, diag):
 def test_a_status_that_stops_arriving_turns_stale(gw, diag):
     name, code = unique("silent_driver")
     pub = diag("silent_driver", rate=10)
+    known(gw, "silent_driver")
     pub.set([{"name": name, "level": 0, "message": "ok"}])
     pub.set([{"name": name, "level": 0, "message": "ok"}], publish=False)  # the driver hangs
     got = wait_status(gw, code, "CONFIRMED", timeout=30)

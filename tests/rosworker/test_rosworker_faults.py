@@ -168,6 +168,15 @@ def test_silence_is_judged_against_what_was_taken_not_against_the_clock(make):
     assert m.faults["PROBE"]["severity"] == 3 and m.faults["PROBE"]["description"].startswith("stale")
 
 
+def test_a_stale_status_whose_node_came_into_the_graph_since_is_that_node_s(make):
+    m = make(confirm_count=1, stale_s=5)
+    m.on_array(array(("dead: motor", 0)))          # reported before the graph knew the node: a guess
+    m.graph = types.SimpleNamespace(nodes=["/base/dead"])
+    m.tick(time.monotonic() + 6)                   # silent since: stale, from the node it names
+    assert m.faults["DEAD_MOTOR"]["description"].startswith("stale")
+    assert m.faults["DEAD_MOTOR"]["sources"] == ["/base/dead"]
+
+
 def test_a_flood_of_new_names_never_pushes_a_held_fault_out_of_the_stale_watch(make):
     m = make(confirm_count=1, stale_s=5, max_faults=3)
     m.on_array(array(("held a", 2), ("held b", 2)))
