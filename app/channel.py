@@ -96,6 +96,7 @@ class Subscriber:
     def __init__(self, runtime_dir: str):
         self.runtime_dir = runtime_dir
         self.connected = False
+        self.reconnects = 0       # connections to the ROS worker lost so far (a restarted worker)
         self.heartbeat = 0.0
         self.confirmations = Confirmations()
         self._ctx: zmq.Context | None = None
@@ -173,4 +174,5 @@ class Subscriber:
             self.connected = True
         elif event == zmq.EVENT_DISCONNECTED:
             self.connected = False
+            self.reconnects += 1
             self.confirmations.lost()

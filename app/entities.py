@@ -175,9 +175,10 @@ class Entity:
     def detail(self) -> dict[str, Any]:
         """The entity detail with medkit's URIs, ``capabilities`` and ``_links``.
 
-        Only what this gateway serves is linked: ``data``, ``operations``,
-        ``configurations``, ``faults``, ``logs``, ``triggers`` and the relation
-        collections, in medkit's order (``discovery_handlers.cpp``).  As in medkit, ``depends-on`` is linked only when there are
+        Only what this gateway serves is linked: ``status`` (apps and components),
+        ``data``, ``operations``, ``configurations``, ``faults``, ``logs``,
+        ``triggers`` and the relation collections, in medkit's order
+        (``discovery_handlers.cpp``).  As in medkit, ``depends-on`` is linked only when there are
         dependencies (never, in runtime discovery) and an app's ``belongs-to``
         only when it has a host component; a function's ``hosts`` is the URI of
         its hosts collection (the app ids are in ``x-medkit.hosts``).
@@ -195,13 +196,13 @@ class Entity:
                         contains=base + "/contains", data=base + "/data")
             caps = ["subareas", "contains", "data"]
         elif self.collection == "components":
-            body.update(data=base + "/data", **served, subcomponents=base + "/subcomponents",
+            body.update(status=base + "/status", data=base + "/data", **served, subcomponents=base + "/subcomponents",
                         hosts=base + "/hosts", logs=base + "/logs", triggers=base + "/triggers")
-            caps = ["data", *SERVED_RESOURCES, "logs", "subcomponents", "hosts", "triggers"]
+            caps = ["status", "data", *SERVED_RESOURCES, "logs", "subcomponents", "hosts", "triggers"]
         elif self.collection == "apps":
-            body["data"] = base + "/data"
+            body.update(status=base + "/status", data=base + "/data")
             body.update(served, logs=base + "/logs", triggers=base + "/triggers")
-            caps = ["data", *SERVED_RESOURCES, "logs", "triggers"]
+            caps = ["status", "data", *SERVED_RESOURCES, "logs", "triggers"]
             if self.component_id is not None:
                 located = f"{API_BASE}/components/{self.component_id}"
                 body["is-located-on"] = located

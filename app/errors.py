@@ -44,6 +44,7 @@ IPC_ANSWERS: dict[str, tuple[int, str, str | None, int | None]] = {
     "pool-busy": (503, "vendor-error", "x-medkit-pool-busy", 1),
     "shutdown": (503, "vendor-error", "x-medkit-gateway-shutdown", 2),
     "unavailable": (503, "vendor-error", "x-medkit-ros-worker-unavailable", 2),
+    "outcome-unknown": (504, "not-responding", None, None),  # a write sent; no retry advice
     "subscriptions-full": (503, "service-unavailable", None, 5),
     "deadline-exceeded": (504, "not-responding", None, None),
     # operations: services and actions

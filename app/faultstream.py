@@ -8,9 +8,13 @@ stream of the process.
 
 An event is medkit's: ``id: <n>``, ``event: fault_confirmed | fault_updated |
 fault_cleared`` and ``data: {"event_type", "fault", "timestamp"}``.  Event ids
-go on across restarts (the ROS worker keeps them in its fault store), so a
-client that reconnects with ``Last-Event-ID`` gets what it missed, replayed
-from the store (the last ``MAX_EVENTS``), then the live events.
+never go backwards, across restarts too (``rosworker/faults.py``), so a client
+that reconnects with ``Last-Event-ID`` gets what it missed, replayed from the
+ROS worker (the last ``MAX_EVENTS``), then the live events.  A restarted ROS
+worker publishes before this process's subscription has reached it (the
+channel loses what it sends meanwhile, ``ipc/PROTOCOL.md``): once the
+subscription is confirmed again, the hub asks it for the events after the
+oldest an open stream has, and hands them on before the live ones.
 
 Bounds: ``max_fault_streams`` open streams per HTTP worker (503 past it, as
 medkit's client limit); ``STREAM_BUFFER`` events held for a slow client (the
@@ -25,7 +29,7 @@ import collections
 import logging
 import socket
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import gevent
@@ -71,6 +75,7 @@ class FaultStream:
     def body(self, replay, sock: Any = None) -> Iterator[bytes]:
         """The response body; ``sock`` (gunicorn's connection) is looked at for a client that left."""
         hub = self.hub
+        hub.replay = replay
         stalled = gevent.Timeout(hub.send_timeout, SendStalled(hub.send_timeout))
         hub.streams.add(self)
         try:
@@ -142,9 +147,16 @@ class FaultHub(channel.Subscriber):
         super().__init__(runtime_dir)
         self.send_timeout = send_timeout
         self.streams: set[FaultStream] = set()
+        self.replay: Callable[[int], list[dict[str, Any]]] | None = None  # fault_events, set by a stream
+        self._caught_up = 0   # the reconnects whose missed events were fetched
 
     def dispatch(self, frames: list[bytes]) -> None:
-        if len(frames) < 2 or frames[0] != events.FAULT_KEY:
+        if len(frames) == 1:  # a confirmation: after a reconnect, what the ROS worker sent before it
+            if frames[0] == events.FAULT_KEY and self._caught_up != self.reconnects:
+                self._caught_up = self.reconnects
+                self._catch_up()
+            return
+        if frames[0] != events.FAULT_KEY:
             return
         event = protocol.unpack(frames[1], protocol.MAX_REPLY_FRAME)
         event_id = event.get("id")
@@ -153,6 +165,25 @@ class FaultHub(channel.Subscriber):
         frame = chunk(event_id, event)
         for stream in list(self.streams):
             stream.push(event_id, frame)
+
+
+    def _catch_up(self) -> None:
+        """The events after the oldest an open stream has, handed on before the live ones that follow (the
+        reader waits for them: the live events queue in the socket meanwhile)."""
+        streams = list(self.streams)
+        if not streams or self.replay is None:
+            return
+        try:
+            missed = self.replay(min(stream.last_id for stream in streams))
+        except IpcError as exc:
+            log.info("fault stream: no catch-up after the ROS worker came back: %s", exc.message)
+            return
+        for event in missed:
+            if isinstance(event, dict) and isinstance(event.get("id"), int):
+                frame = chunk(event["id"], event)
+                for stream in streams:
+                    if event["id"] > stream.last_id:
+                        stream.push(event["id"], frame)
 
 
 def _started(runtime_dir: str, send_timeout: float) -> FaultHub:

@@ -71,8 +71,8 @@ X_MEDKIT_ENTITY = {
 # Detail URIs of what the gateway serves, per collection: (required, optional).
 DETAIL_URIS = {
     "areas": (["subareas", "components", "contains", "data"], []),
-    "components": (["data", "subcomponents", "hosts"], []),
-    "apps": (["data"], ["is-located-on", "belongs-to"]),
+    "components": (["status", "data", "subcomponents", "hosts"], []),
+    "apps": (["status", "data"], ["is-located-on", "belongs-to"]),
     "functions": (["hosts", "data"], []),
 }
 # Entity details link the resources (medkit's detail URIs): operations, configurations, faults, logs, triggers.
@@ -411,6 +411,24 @@ def _relation_paths() -> dict[str, Any]:
 DOC = {"description": "OpenAPI 3.1 document", "content": {"application/json": {"schema": OBJ}}}
 
 
+# GET .../status (app/routes/status.py): medkit's LifecycleStatusResponse; its default path sends the status only.
+SCHEMAS["LifecycleStatusResponse"] = _obj(
+    ["status"], status={"enum": ["ready", "notReady"], "description": "ready: in the graph, and a managed "
+                        "(lifecycle) node in the state active"},
+    start=STR, restart=STR, force__restart=STR, shutdown=STR, force__shutdown=STR)
+
+
+LIFECYCLE_TAG = ("GET .../status: ready or notReady; the transitions (PUT .../status/{transition}) are not "
+                 "implemented: 501 (Lifecycle control not available for this entity)")
+
+
+def _status_paths() -> dict[str, Any]:
+    return {f"/{collection}/{{{PARAM_NAMES[collection]}}}/status": {"get": _op(
+        f"get{_title(collection)}Status", "Lifecycle", f"Whether the {collection[:-1]} is ready: a managed "
+        "(lifecycle) node read through its get_state service", _ok("LifecycleStatusResponse"), "400", "404",
+        "503", "504", parameters=[_id_param(collection)])} for collection in ("apps", "components")}
+
+
 def _docs_paths() -> dict[str, Any]:
     """The scoped documents (``/docs`` itself is with the server routes)."""
     doc = DOC
@@ -541,15 +559,17 @@ def _trigger_paths(collection: str) -> dict[str, Any]:
     params = [_id_param(collection)]
     not_found = ("404", "Unknown entity (`entity-not-found`) or trigger (`resource-not-found`, `Trigger not "
                         "found`, parameters `trigger_id`)")
-    bad = ("400", "A missing or invalid field, condition, JSON Pointer or lifetime, an unknown or not "
-                  "observable collection, a range condition without `path` on faults or logs "
+    bad = ("400", "A missing or invalid field, condition, JSON Pointer or lifetime, a `target_value` of more "
+                  "than 4096 bytes of JSON (parameters `max_bytes`) or a `path` of more than 1024 characters, "
+                  "an unknown or not observable collection, a range condition without `path` on faults or logs "
                   "(`invalid-parameter`, parameters `parameter`), a malformed resource "
                   "(`x-medkit-invalid-resource-uri`) or one of another entity (`x-medkit-entity-mismatch`)")
     unauthorized = ("401", "An API token is configured and the request has none (`unauthorized`)")
     forbidden = ("403", "An API token is configured and the request's is wrong (`forbidden`)")
     token = {"security": [{"bearerAuth": []}, {}]}
-    full = ("503", "At the max_triggers cap, or this client's max_triggers_per_client cap "
-                   "(`service-unavailable`), or the ROS worker is away; retry after `Retry-After` seconds")
+    full = ("503", "At the max_triggers cap, this client's max_triggers_per_client cap, or the "
+                   "max_trigger_bytes cap of what all triggers hold (`service-unavailable`), or the ROS worker "
+                   "is away; retry after `Retry-After` seconds")
     created = {"description": "Created", "headers": {"Location": {"schema": STR}},
                "content": {"application/json": {"schema": ref("Trigger")}}}
     create = _op(f"create{title}Trigger", "Triggers", f"Watch a data item, the faults or the logs of a "
@@ -911,8 +931,8 @@ SCHEMAS["HealthStatus"]["properties"]["x-medkit-faults"] = {
                    "first answers"}
 _FAULT_QUERY = {"name": "status", "in": "query", "required": False,
                 "schema": {"enum": ["pending", "confirmed", "cleared", "healed", "all"]},
-                "description": "pending (PREFAILED, PREPASSED), confirmed, cleared (CLEARED, HEALED), healed, "
-                               "all; without it the active faults (pending and confirmed)"}
+                "description": "pending (PREFAILED), confirmed, healed (HEALED, PREPASSED), cleared (CLEARED "
+                               "and what healed holds), all; without it pending and confirmed (medkit's)"}
 _FAULT_ERRORS = {
     "400": ("Invalid entity ID, a `status` other than pending, confirmed, cleared, healed or all "
             "(`invalid-parameter`, `Invalid status parameter value`, parameters `allowed_values`, "
@@ -1002,6 +1022,7 @@ def _document() -> dict[str, Any]:
     for collection in ("apps", "components", "functions"):  # triggers (app/routes/triggers.py)
         paths.update(_trigger_paths(collection))
     paths.update(_not_implemented_paths())
+    paths.update(_status_paths())  # GET .../status (the transitions are 501: _not_implemented_paths)
     for collection in ("apps", "components", "functions"):  # logs (issue 22)
         paths.update(_logs_paths(collection))
     paths["/metrics"] = {"get": METRICS_OP}
@@ -1021,10 +1042,12 @@ def _document() -> dict[str, Any]:
                  {"name": "Subscriptions", "description": "Cyclic subscriptions: live data over SSE"},
                  {"name": "Operations", "description": "ROS 2 services and actions (operations: services "
                                                        "and actions)"},
+                 {"name": "Configuration", "description": "ROS 2 parameters of the nodes (configurations)"},
                  {"name": "Logs", "description": "The robot's /rosout, per entity (issue 22)"},
                  {"name": "Triggers", "description": "Condition triggers: events over SSE"},
                  {"name": "Faults", "description": "The robot's /diagnostics as SOVD faults (issue 22)"},
-                 *({"name": f.tag, "description": f"Not implemented: 501 ({f.message})"}
+                 *({"name": f.tag, "description": LIFECYCLE_TAG if f.tag == "Lifecycle"
+                    else f"Not implemented: 501 ({f.message})"}
                    for f in unimplemented.FEATURES.values())],
         "paths": paths,
         "components": {

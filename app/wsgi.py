@@ -58,6 +58,9 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
     from .routes import faults  # faults: /diagnostics as SOVD faults
 
     app.register_blueprint(faults.bp)
+    from .routes import status  # GET .../status: ready or notReady (lifecycle)
+
+    app.register_blueprint(status.bp)
     app.register_blueprint(unimplemented.bp)  # medkit's routes not served here: 501
     app.register_blueprint(ui.bp)  # the dashboard at /ui/ (app/ui/)
     from .routes import operations  # operations: services and actions

@@ -36,17 +36,21 @@ def wait_for_publishers(node, topic: str, timeout: float, stop: threading.Event)
     return []
 
 
-def spin(node, stop: threading.Event) -> None:
-    """Run the node's callbacks until ``stop`` is set; then destroy it and shut rclpy down."""
+def spin(node, stop: threading.Event, others=()) -> None:
+    """Run the callbacks of the node (and of ``others`` of this process) until ``stop`` is set; then
+    destroy them and shut rclpy down."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
+    nodes = [node, *others]
     executor = SingleThreadedExecutor()
-    executor.add_node(node)
+    for each in nodes:
+        executor.add_node(each)
     try:
         while not stop.is_set():
             executor.spin_once(timeout_sec=0.05)
     finally:
-        executor.remove_node(node)
-        node.destroy_node()
+        for each in nodes:
+            executor.remove_node(each)
+            each.destroy_node()
         rclpy.try_shutdown()

@@ -187,8 +187,8 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("parameter_client_idle_s", float, 300.0, "seconds a node's unused parameter clients are kept",
             1, 86400),
     # --- faults: /diagnostics as SOVD faults (rosworker/faults.py, README "Faults") ---
-    Setting("state_dir", str, "", "directory of the fault store faults.db (default: $STATE_DIRECTORY, "
-            "else $XDG_STATE_HOME/sovd-gateway, else ~/.local/state/sovd-gateway)"),
+    Setting("state_dir", str, "", "directory of the store faults.db: faults and triggers (default: "
+            "$STATE_DIRECTORY, else $XDG_STATE_HOME/sovd-gateway, else ~/.local/state/sovd-gateway)"),
     Setting("fault_confirm_count", int, 3, "failing reports that confirm a fault", 1, 10000),
     Setting("fault_confirm_s", float, 1.0, "seconds of failing reports that confirm a fault", 0.01, 86400),
     Setting("fault_heal_count", int, 3, "passing reports that heal a fault", 1, 10000),
@@ -208,8 +208,8 @@ SETTINGS: tuple[Setting, ...] = (
     # --- triggers (README "Triggers") ---
     Setting("max_triggers", int, 1000, "triggers held at once", 1, 100000),
     Setting("max_triggers_per_client", int, 100, "triggers one client address may hold at once", 1, 100000),
-    Setting("trigger_store", str, "", "file that keeps the triggers across restarts (default: "
-            "triggers.json in $STATE_DIRECTORY under systemd, else in runtime_dir)"),
+    Setting("max_trigger_bytes", int, 16 * 2**20, "bytes of the records of all triggers held at once "
+            "(conditions, targets, paths), in memory and in the store", 2**16, 2**30),
 )
 
 BY_NAME = {s.name: s for s in SETTINGS}
@@ -218,6 +218,8 @@ BY_NAME = {s.name: s for s in SETTINGS}
 RETIRED = {
     "threads": "the HTTP workers run an event loop, not threads; "
                "worker_connections bounds what one worker holds",
+    "trigger_store": "the triggers are kept in the fault store (faults.db in state_dir); a triggers.json "
+                     "of an older gateway is imported once",
 }
 _RATE = re.compile(r"^\s*([0-9]+(?:\.[0-9]+)?)\s*(?:/\s*([0-9]+)\s*)?$")
 _ORIGIN = re.compile(r"^https?://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9-]+(\.[A-Za-z0-9-]+)*)(:[0-9]{1,5})?$")

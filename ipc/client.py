@@ -28,8 +28,14 @@ used.)
 Every call has a deadline.  DEALER sockets do not get stuck after a timeout
 the way REQ sockets do; a late reply is recognised by its id and dropped by
 whichever call uses the channel next.  A connection that drops while a call
-waits (the ROS worker died with the request) ends the call at once with
-``unavailable``.
+waits (the ROS worker died with the request) ends the call at once.
+
+Never reached, or answer lost.  A request that could not be sent (no ROS
+worker connected) is ``unavailable``: nothing happened, a retry is safe.  One
+that was sent, when the connection then drops, may have been carried out:
+for a write (:data:`ipc.protocol.WRITES`: a service call, a goal, a cancel, a
+parameter set or reset, a publish, a fault clear ...) that is
+``outcome-unknown`` (HTTP 504, no Retry-After); a read is ``unavailable``.
 """
 
 from __future__ import annotations
@@ -243,8 +249,9 @@ class RosWorkerClient:
 
         Returns the ``result`` map; raises :class:`IpcError` with code
         ``unavailable`` (no ROS worker connected, or it went away while we
-        waited), ``deadline-exceeded`` (no answer in time, or no free channel
-        in time) or whatever the ROS worker answered.
+        waited for a read), ``outcome-unknown`` (it went away while we waited
+        for a write it was sent), ``deadline-exceeded`` (no answer in time, or
+        no free channel in time) or whatever the ROS worker answered.
         """
         deadline = time.monotonic() + timeout
         pool = self._pool(self._endpoint_for(cmd))
@@ -299,6 +306,9 @@ class RosWorkerClient:
             if sock not in ready:
                 # The connection dropped while we waited: the worker died with our request.
                 channel.forget_disconnects()
+                if cmd in protocol.WRITES:
+                    raise IpcError("outcome-unknown", f"The ROS worker went away while handling {cmd!r}: it may "
+                                   "or may not have been carried out; check before you retry", {"command": cmd})
                 raise IpcError("unavailable", f"The ROS worker went away while handling {cmd!r}; "
                                               "retry shortly", {"command": cmd})
             try:

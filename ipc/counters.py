@@ -178,7 +178,13 @@ COUNTERS: tuple[Counter, ...] = (
       "sovd_ros_parameter_client_cap", setting="max_parameter_clients"),
     C("details", "parameter_calls_in_flight", GAUGE, "Parameter operations waiting on a node now",
       "sovd_ros_parameter_calls_in_flight"),
+    C("details", "parameter_waiting", GAUGE, "Parameter operations waiting in line for a client set now "
+      "(all max_parameter_clients in flight)", "sovd_ros_parameter_waiting"),
+    C("details", "parameter_waits", COUNTER, "Parameter operations that waited in line for a client set",
+      "sovd_ros_parameter_waits"),
     C("details", "parameter_calls", COUNTER, "Parameter service requests sent", "sovd_ros_parameter_calls"),
+    C("details", "parameter_resends", COUNTER, "Parameter reads sent again after no answer for 0.5 s (a new "
+      "client's first reply may be lost)", "sovd_ros_parameter_resends"),
     C("details", "parameter_timeouts", COUNTER, "Parameter operations a node did not answer in time",
       "sovd_ros_parameter_timeouts"),
     C("details", "parameter_events", COUNTER, "Messages read from /parameter_events",
@@ -207,6 +213,10 @@ COUNTERS: tuple[Counter, ...] = (
     C("streams", "active_triggers", GAUGE, "Triggers active now", "sovd_ros_triggers"),
     C("streams", "max_triggers", GAUGE, "Most triggers held at once (max_triggers)", "sovd_ros_triggers_cap",
       setting="max_triggers"),
+    C("streams", "trigger_bytes", GAUGE, "Bytes of the records of the triggers held (at most max_trigger_bytes)",
+      "sovd_ros_trigger_bytes"),
+    C("streams", "max_trigger_bytes", GAUGE, "Byte cap of the triggers held (max_trigger_bytes)",
+      "sovd_ros_trigger_bytes_cap", setting="max_trigger_bytes"),
     C("streams", "triggers_created", COUNTER, "Triggers created", "sovd_ros_triggers_created"),
     C("streams", "trigger_messages", COUNTER, "Messages of watched topics taken and evaluated (one per "
       "message, however many triggers watch the topic)", "sovd_ros_trigger_messages"),

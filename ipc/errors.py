@@ -34,6 +34,7 @@ CODES: frozenset[str] = frozenset({
     "pool-busy",
     "shutdown",
     "unavailable",
+    "outcome-unknown",   # a write reached the ROS worker, which went away before it answered
     "subscriptions-full",
     "deadline-exceeded",
     # operations: services and actions

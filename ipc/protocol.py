@@ -42,12 +42,21 @@ COMMANDS = (
     # faults (rosworker/faults.py)
     "fault_list", "fault_get", "fault_clear", "fault_events",
     "logs", "log_config_get", "log_config_set",  # logs (issue 22): rosworker/logs.py
+    "lifecycle_state",  # GET .../status: a managed node's state (rosworker/lifecycle.py)
 )
 # Triggers (rosworker/triggers.py).
 COMMANDS += ("trig_create", "trig_list", "trig_get", "trig_update", "trig_delete", "trig_open")
 # Commands answered from counters by the control thread, without queueing behind ROS work;
 # clients send them to the control socket.
 IMMEDIATE = ("ping", "stats")
+# Commands that change something on the robot or in the gateway.  Once one was sent, an answer
+# lost with the ROS worker leaves its outcome unknown (``outcome-unknown``, not ``unavailable``):
+# a client must look before it tries again (a service call is not idempotent).
+WRITES = frozenset({
+    "publish", "op_call", "op_goal", "op_cancel", "param_set", "param_reset", "param_reset_all",
+    "fault_clear", "log_config_set", "sub_create", "sub_update", "sub_delete",
+    "trig_create", "trig_update", "trig_delete",
+})
 
 
 def endpoint(runtime_dir: str) -> str:

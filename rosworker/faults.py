@@ -17,19 +17,32 @@ The mapping is medkit's diagnostic bridge's:
 - the reporting source: the ``hardware_id`` when it contains ``/`` (a node
   name, medkit's ``use_hardware_id_as_source_id``); else the node whose name
   starts the status name (``diagnostic_updater`` names statuses
-  ``<node name>: <task>``); else the only node that publishes
-  ``/diagnostics``; else ``/diagnostics`` itself (rclpy does not say which
-  publisher sent a message).
+  ``<node name>: <task>``); else, as a guess, the only node that publishes
+  ``/diagnostics`` (one whose name discovery does not know yet is no node);
+  else ``/diagnostics`` itself (rclpy does not say which publisher sent a
+  message).  A guess is replaced, not joined, by the first source the status
+  itself names: one status is one source, not two.
 
-The lifecycle (medkit's fault manager's states): a failing report makes the
-fault PREFAILED (a new occurrence: ``occurrence_count`` + 1); it is CONFIRMED
-after ``fault_confirm_count`` failing reports or ``fault_confirm_s`` seconds
-of failing, whichever comes first, or at once at severity CRITICAL; a
-passing report makes it PREPASSED, and ``fault_heal_count`` passing reports
-HEALED.  A failing report on a HEALED or CLEARED fault is a new occurrence.
-DELETE makes it CLEARED.  A status that stops arriving for ``fault_stale_s``
-seconds (a dead driver) is reported failing at CRITICAL with the message
-"stale".
+The lifecycle (medkit's fault manager's states): a failing report makes a
+new fault PREFAILED (``occurrence_count`` 1); it is CONFIRMED after
+``fault_confirm_count`` failing reports or ``fault_confirm_s`` seconds of
+failing, whichever comes first, or at once at severity CRITICAL; a passing
+report makes it PREPASSED, and ``fault_heal_count`` passing reports HEALED.
+A failing report on a HEALED fault makes it PREFAILED again, the same
+occurrence; DELETE makes it CLEARED, and a failing report on a CLEARED fault
+is a new occurrence (``occurrence_count`` + 1, ``first_occurred`` anew).
+Reports that go on only advance ``last_occurred`` (medkit's edge counting).
+
+Stale: a status that stops arriving for ``fault_stale_s`` seconds (a dead
+driver) is reported failing at CRITICAL with the message "stale".  Silence is
+judged against what has been taken: only up to the last moment the
+subscription's queue was seen empty (a round that took everything), so a
+status that arrived on time but waits in the queue (the ROS thread was busy,
+a flood ran past a round's budget) is never stale.  ``seen`` (the time of
+each status's last report) holds at most ``SEEN_PER_FAULT`` × ``max_faults``
+statuses; past that the least recently reported one that is not a fault the
+gateway holds goes, so every held fault can still go stale under a flood of
+new names.
 
 At confirmation a freeze frame is taken: the status's key/value pairs, and
 the newest message of each topic that ``fault_snapshot_topics`` names for the
@@ -38,9 +51,14 @@ PREFAILED, so that they have a message by then).  ``SNAPSHOTS_MAX`` frames of
 at most ``SNAPSHOT_BYTES`` each per fault.
 
 Events (``fault_confirmed``, ``fault_updated``, ``fault_cleared``) get ids
-that go on across restarts, are kept (``MAX_EVENTS``, also in the store) for
-``Last-Event-ID`` replay, and are published on the events channel
-(``ipc/events.py``, key ``f|``) for the HTTP workers' fault streams.
+that never go backwards: a start's ids begin at its epoch (the wall clock in
+microseconds, or the last stored id + 1 if that is higher) and count up by
+one, so a new start's ids are above every earlier one's even when the store
+is in memory only (an unwritable state dir, a corrupt file moved aside).  They
+stay plain integers (the SSE ``id:``, ``Last-Event-ID``).  Events are kept
+(``MAX_EVENTS``, also in the store) for ``Last-Event-ID`` replay, and are
+published on the events channel (``ipc/events.py``, key ``f|``) for the HTTP
+workers' fault streams.
 """
 
 from __future__ import annotations
@@ -72,6 +90,7 @@ STATUSES_PER_ROUND = 500   # ... and statuses: a round stays short (tens of ms) 
 STATUSES_PER_ARRAY = 1000  # statuses of one array looked at, at most
 TICK_EVERY = 0.1           # seconds between checks of the timers (confirm by time, stale)
 PERSIST_EVERY = 1.0        # seconds between writes of a fault whose status did not change
+SEEN_PER_FAULT = 2         # statuses whose last report is kept: this many per max_faults
 PUBLISHERS_TTL = 1.0       # seconds the publishers of /diagnostics are cached
 GRAPH_RETRY = 0.1          # seconds between two direct graph queries for a status's unknown node
 CODE_MAX = 256
@@ -157,7 +176,7 @@ class FaultManager:
         self.codes = parse_codes(codes)
         self.snapshot_topics = parse_snapshot_topics(snapshot_topics)
         self.faults: dict[str, dict[str, Any]] = {}
-        # code -> [monotonic last report, status name, source, stale already reported]
+        # code -> [monotonic last report, status name, source, stale already reported, source guessed]
         self.seen: collections.OrderedDict[str, list] = collections.OrderedDict()
         self.values: dict[str, dict[str, Any]] = {}       # code -> the last failing status (freeze frame)
         self.events: collections.deque[tuple[int, dict[str, Any]]] = collections.deque(maxlen=MAX_EVENTS)
@@ -173,6 +192,7 @@ class FaultManager:
         self.cls = None
         self.arrays = 0
         self.refused = 0
+        self._drained = time.monotonic()  # the last moment the subscription's queue was seen empty
         # faults triggers: set by rosworker/triggersources.py while a trigger watches faults, else None
         self.trigger_hook: Callable[[str, dict[str, Any]], None] | None = None
         self._publish_stats()
@@ -186,11 +206,14 @@ class FaultManager:
                 self.faults[code] = record
                 if record["status"] in ACTIVE:
                     # reported again, or stale after fault_stale_s: a driver that died with the gateway
-                    self.seen[code] = [now, record.get("name", code), (record.get("sources") or [TOPIC])[0], False]
+                    self.seen[code] = [now, record.get("name", code), (record.get("sources") or [TOPIC])[0], False,
+                                       bool(record.get("guessed"))]
         for event_id, event in events:
             self.events.append((event_id, event))
-        if self.events:
-            self.next_event_id = self.events[-1][0] + 1
+        # The ids of this start begin at its epoch (wall clock, µs), above every id of an earlier
+        # start: a stream that stays open across a ROS worker restart, or a client that reconnects with
+        # Last-Event-ID, never takes a new event for one it has (a store in memory only keeps no ids).
+        self.next_event_id = max(time.time_ns() // 1000, self.events[-1][0] + 1 if self.events else 1)
         self._publish_stats()
 
     def start(self) -> None:
@@ -210,9 +233,9 @@ class FaultManager:
             return
         self.executor.call_later(TAKE_EVERY, self._take_round)
 
-    def shutdown(self, timeout: float) -> None:
+    def shutdown(self) -> None:
+        """Hand what is not written yet to the store (which the caller closes) and unsubscribe."""
         self._flush(force=True)
-        self.store.close(timeout)
         if self.sub is not None:
             self.node.destroy_subscription(self.sub)
             self.sub = None
@@ -226,6 +249,7 @@ class FaultManager:
         for _ in range(TAKE_PER_ROUND):
             taken = self.sub.handle.take_message(self.cls, False)
             if taken is None:
+                self._drained = time.monotonic()  # everything that came before now has been taken
                 break
             self.arrays += 1
             statuses += len(taken[0].status)
@@ -235,9 +259,12 @@ class FaultManager:
 
     def _tick_round(self) -> None:
         self.executor.call_later(TICK_EVERY, self._tick_round)
-        self.tick(time.monotonic())
+        now = time.monotonic()
+        self.tick(now if self.sub is None else min(now, self._drained))
 
     def tick(self, now: float) -> None:
+        """Confirm by time; report as stale what has not been reported for ``stale_s`` s before ``now``
+        (the last moment everything that arrived had been taken, see the module's docstring)."""
         wall = time.time_ns()
         for record in list(self.faults.values()):
             if record["status"] == PREFAILED and wall - record["since_ns"] >= self.confirm_s * 1e9:
@@ -246,8 +273,10 @@ class FaultManager:
             for code, seen in list(self.seen.items()):
                 if not seen[3] and now - seen[0] >= self.stale_s:
                     seen[3] = True
+                    if seen[4]:  # its source was a guess: the graph may know the node its name names by now
+                        seen[2], seen[4] = self._source_of(seen[1], "", lambda seen=seen: seen[2])
                     self._failed(code, seen[1], 3, f"stale: no report for {self.stale_s:g} s", seen[2], None,
-                                 wall, stale=True)
+                                 wall, stale=True, guessed=seen[4])
         self._flush()
         self._publish_stats()
 
@@ -259,14 +288,13 @@ class FaultManager:
             code = self._code(name)
             if not code:
                 continue
-            source = self._source(status)
+            source, guessed = self._source(status)
             seen = self.seen.get(code)
             if seen is None:
-                if len(self.seen) >= max(self.max_faults, 1):
-                    self.seen.popitem(last=False)
-                self.seen[code] = [now, name, source, False]
+                self._make_room_in_seen()
+                self.seen[code] = [now, name, source, False, guessed]
             else:
-                seen[0], seen[1], seen[2], seen[3] = now, name, source, False
+                seen[0], seen[1], seen[2], seen[3], seen[4] = now, name, source, False, guessed
                 self.seen.move_to_end(code)
             level = _level(status.level)
             if level == 0:
@@ -275,7 +303,19 @@ class FaultManager:
             values = {"level": level, "name": name, "message": status.message[:VALUE_CHARS],
                       "hardware_id": status.hardware_id[:VALUE_CHARS],
                       "values": {kv.key[:VALUE_CHARS]: kv.value[:VALUE_CHARS] for kv in status.values[:VALUES_MAX]}}
-            self._failed(code, name, min(level, 3), status.message[:VALUE_CHARS], source, values, wall)
+            self._failed(code, name, min(level, 3), status.message[:VALUE_CHARS], source, values, wall,
+                         guessed=guessed)
+
+    def _make_room_in_seen(self) -> None:
+        """At the cap, the least recently reported status that is not a fault held goes (held ones are
+        passed over: they stay watched for staleness; there are at most ``max_faults`` of them)."""
+        cap = SEEN_PER_FAULT * max(self.max_faults, 1)
+        passed_over = 0
+        while len(self.seen) >= cap and passed_over < len(self.seen):
+            code, entry = self.seen.popitem(last=False)
+            if code in self.faults:
+                self.seen[code] = entry  # to the end; its time is in the entry, not in the order
+                passed_over += 1
 
     def _code(self, name: str) -> str:
         code = self._code_cache.get(name)
@@ -286,19 +326,24 @@ class FaultManager:
             self._code_cache[name] = code
         return code
 
-    def _source(self, status) -> str:
-        hardware_id = status.hardware_id
+    def _source(self, status) -> tuple[str, bool]:
+        """``(source, guessed)``: the node the status names (its hardware_id, or the node its name
+        starts with), else a guess (the only publisher of /diagnostics, or the topic itself)."""
+        return self._source_of(status.name, status.hardware_id, self._only_publisher)
+
+    def _source_of(self, name: str, hardware_id: str, guess: Callable[[], str]) -> tuple[str, bool]:
         if "/" in hardware_id:
-            return hardware_id[:CODE_MAX]
-        prefix, sep, _ = status.name.partition(":")
+            return hardware_id[:CODE_MAX], False
+        prefix, sep, _ = name.partition(":")
         if sep and prefix.strip():
             matches = self._nodes_named(prefix.strip())
             if len(matches) == 1:
-                return matches[0]
+                return matches[0], False
+        return guess(), True
+
+    def _only_publisher(self) -> str:
         publishers = self._diagnostics_publishers()
-        if len(publishers) == 1:
-            return publishers[0]
-        return TOPIC
+        return publishers[0] if len(publishers) == 1 else TOPIC
 
     def _nodes_named(self, name: str) -> list[str]:
         """The graph's nodes called ``name``; asked again (at most every GRAPH_RETRY s) on a miss,
@@ -320,12 +365,14 @@ class FaultManager:
         now = time.monotonic()
         if now - when >= PUBLISHERS_TTL and self.endpoints is not None:
             infos = self.endpoints.publishers(TOPIC)
-            names = sorted({(i.node_namespace.rstrip("/") + "/" + i.node_name) for i in infos})
+            # An endpoint found before its node is named "_NODE_NAME_UNKNOWN_": no node, no source.
+            names = sorted({(i.node_namespace.rstrip("/") + "/" + i.node_name) for i in infos
+                            if not i.node_name.startswith("_NODE_NAME_UNKNOWN")})
             self._publishers = (now, names)
         return names
 
     def _failed(self, code: str, name: str, severity: int, message: str, source: str,
-                values: dict[str, Any] | None, wall: int, stale: bool = False) -> None:
+                values: dict[str, Any] | None, wall: int, stale: bool = False, guessed: bool = False) -> None:
         record = self.faults.get(code)
         changed = False
         if record is None:
@@ -334,12 +381,16 @@ class FaultManager:
             record = self.faults[code] = {
                 "code": code, "name": name, "severity": severity, "description": message, "first_ns": wall,
                 "last_ns": wall, "passed_ns": 0, "count": 1, "status": PREFAILED, "sources": [source],
-                "snapshots": [], "fails": 1, "oks": 0, "since_ns": wall, "confirmed": False}
+                "snapshots": [], "fails": 1, "oks": 0, "since_ns": wall, "confirmed": False, "guessed": guessed}
             self._warm(code)
             changed = True
-        elif record["status"] in (HEALED, CLEARED):
+        elif record["status"] == CLEARED:  # reported again after a clear: a new occurrence (medkit's)
             record.update(status=PREFAILED, first_ns=wall, fails=1, oks=0, since_ns=wall, confirmed=False,
                           count=min(record["count"] + 1, 2**32 - 1))
+            self._warm(code)
+            changed = True
+        elif record["status"] == HEALED:  # failing again after it healed: the same occurrence
+            record.update(status=PREFAILED, fails=1, oks=0, since_ns=wall, confirmed=False)
             self._warm(code)
             changed = True
         elif record["status"] == PREPASSED:
@@ -353,15 +404,16 @@ class FaultManager:
         if record["severity"] != severity or record["description"] != message:
             changed = changed or record["status"] == CONFIRMED
             record["severity"], record["description"] = severity, message
-        if source not in record["sources"]:
-            if record["sources"] == [TOPIC] and source != TOPIC:
-                # The first reports came before the graph knew their node (DDS delivers a status
-                # before the node's name is discovered): the node replaces the topic as the source.
-                record["sources"] = [source]
-                changed = True
-            elif len(record["sources"]) < SOURCES_MAX:
-                record["sources"] = [*record["sources"], source]
-                changed = True
+        if record.get("guessed", record["sources"] == [TOPIC]):
+            # The first reports came before the graph knew their node (DDS delivers a status before the
+            # node's name is discovered): the node the status names replaces the guess, and the only
+            # publisher replaces the topic; one guess never replaces another.
+            if not guessed or record["sources"] == [TOPIC]:
+                changed = changed or record["sources"] != [source]
+                record["sources"], record["guessed"] = [source], guessed
+        elif not guessed and source not in record["sources"] and len(record["sources"]) < SOURCES_MAX:
+            record["sources"] = [*record["sources"], source]  # a guess adds nothing to named sources
+            changed = True
         record["last_ns"] = wall
         record["name"] = name
         if values is not None:

@@ -1,21 +1,29 @@
-"""The fault memory: SQLite in the state directory, written by one thread of the ROS worker.
+"""The gateway's memory: SQLite in the state directory, written by one thread of the ROS worker.
 
 ``<state_dir>/faults.db`` (Python's ``sqlite3``; WAL, ``synchronous=FULL``, so a
-committed write survives a killed process and a power cut) holds two tables:
+committed write survives a killed process and a power cut) holds three tables:
 
 - ``faults``: one row per fault code, its record as a JSON document
   (``rosworker/faults.py`` owns the record's fields);
 - ``events``: the fault stream's last ``MAX_EVENTS`` events by id, so that a
   client reconnecting with ``Last-Event-ID`` is answered from here, even after
-  a restart.
+  a restart;
+- ``triggers``: one row per trigger, its record as a JSON document
+  (``rosworker/triggers.py`` owns it): a change writes that one row, never the
+  whole set.
 
-Threads: :meth:`FaultStore.load` runs on the ROS thread at start-up, before
-the loop.  After :meth:`start`, the ROS thread only calls :meth:`put` and
-:meth:`event`, which put the change in a dict keyed by fault code (the latest
-state of a fault wins: a burst of changes to one fault is one row write) and
-wake the writer thread; so the pending work is bounded by the number of faults
-(itself bounded by ``max_faults``) and ``MAX_EVENTS``, and a write never delays
-a take.  A failed write (disk full, file removed) is counted, kept as
+The file, its ``-wal`` and ``-shm`` are the service user's alone (0600: freeze
+frames hold robot data), in a state directory made 0700 when the gateway makes
+it (systemd makes it with ``StateDirectoryMode=``).
+
+Threads: :meth:`FaultStore.load` and :meth:`FaultStore.load_triggers` run on
+the ROS thread at start-up, before the loop.  After :meth:`start`, the ROS
+thread only calls :meth:`put`, :meth:`event` and :meth:`put_trigger`, which put
+the change in a dict keyed by fault code or trigger id (the latest state wins:
+a burst of changes to one row is one row write) and wake the writer thread; so
+the pending work is bounded by the number of faults (``max_faults``), of
+triggers (``max_triggers``) and ``MAX_EVENTS``, and a write never delays a
+take.  A failed write (disk full, file removed) is counted, kept as
 ``last_write_error`` and retried after ``RETRY_AFTER`` s with whatever is newer.
 
 A file that SQLite cannot open or whose ``PRAGMA quick_check`` fails is moved
@@ -33,6 +41,7 @@ import os
 import sqlite3
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 log = logging.getLogger("sovd.rosworker.faultstore")
@@ -42,9 +51,12 @@ MAX_EVENTS = 1000          # events kept for Last-Event-ID replay
 RETRY_AFTER = 1.0          # seconds before a failed write is tried again
 BUSY_TIMEOUT = 5.0         # seconds sqlite waits for a lock (only this process writes)
 
+FILE_MODE = 0o600         # the store's files: the service user's alone
+DIR_MODE = 0o700          # a state directory the gateway makes
 _SCHEMA = (
     "CREATE TABLE IF NOT EXISTS faults (code TEXT PRIMARY KEY, doc TEXT NOT NULL, updated_ns INTEGER NOT NULL)",
     "CREATE TABLE IF NOT EXISTS events (id INTEGER PRIMARY KEY, doc TEXT NOT NULL)",
+    "CREATE TABLE IF NOT EXISTS triggers (id TEXT PRIMARY KEY, doc TEXT NOT NULL)",
 )
 
 
@@ -57,6 +69,8 @@ class FaultStore:
         self._wake = threading.Condition(self._lock)
         self._faults: dict[str, dict[str, Any] | None] = {}   # code -> record (None: delete)
         self._events: list[tuple[int, dict[str, Any]]] = []
+        self._triggers: dict[str, bytes | None] = {}        # trigger id -> record (None: delete)
+        self._written: list[Callable[[], None]] = []         # called once what was put before is written
         self._thread: threading.Thread | None = None
         self._closing = False
         self._busy = False
@@ -72,7 +86,7 @@ class FaultStore:
         if not self.enabled:
             return {}, []
         try:
-            os.makedirs(os.path.dirname(self.path), mode=0o700, exist_ok=True)
+            make_private_dir(os.path.dirname(self.path))
         except OSError as exc:
             self._disable(f"cannot create the state directory: {exc}")
             return {}, []
@@ -89,6 +103,7 @@ class FaultStore:
             return {}, []
 
     def _open_and_read(self):
+        private_files(self.path)
         db = sqlite3.connect(self.path, timeout=BUSY_TIMEOUT, isolation_level=None, check_same_thread=False)
         self._db = db
         check = db.execute("PRAGMA quick_check").fetchone()
@@ -114,8 +129,25 @@ class FaultStore:
             except ValueError:
                 continue
         events.reverse()
+        private_files(self.path)  # the -wal and -shm that journal_mode=WAL made (SQLite copies the file's mode)
         log.info("fault store %s: %d faults, %d events", self.path, len(faults), len(events))
         return faults, events
+
+    def load_triggers(self) -> list[tuple[str, Any]]:
+        """The stored triggers: ``(row id, record)``, the record None when it is not JSON (ROS thread,
+        after :meth:`load`, before :meth:`start`)."""
+        if not self.enabled or self._db is None:
+            return []
+        out: list[tuple[str, Any]] = []
+        try:
+            for trigger_id, doc in self._db.execute("SELECT id, doc FROM triggers"):
+                try:
+                    out.append((str(trigger_id), json.loads(doc)))
+                except ValueError:
+                    out.append((str(trigger_id), None))
+        except sqlite3.Error as exc:
+            log.error("store %s: the triggers could not be read (%s)", self.path, exc)
+        return out
 
     def _move_aside(self, exc: Exception) -> None:
         target = f"{self.path}.corrupt-{int(time.time())}"
@@ -168,9 +200,24 @@ class FaultStore:
                 del self._events[:-MAX_EVENTS]
             self._wake.notify()
 
+    def put_trigger(self, trigger_id: str, record: bytes | None, then: Callable[[], None] | None = None) -> None:
+        """Write one trigger's record (None: delete it), soon, on the writer thread; ``then()`` is
+        called (on that thread) once it is written.  A store in memory only calls it at once."""
+        if not self.enabled or self._db is None:
+            if then is not None:
+                then()
+            return
+        with self._lock:
+            self._triggers[trigger_id] = record
+            if then is not None:
+                self._written.append(then)
+            self._wake.notify()
+        if self._thread is None:  # not started, or closed: written here
+            self._write_now()
+
     @property
     def pending(self) -> int:
-        return len(self._faults) + len(self._events) + (1 if self._busy else 0)
+        return len(self._faults) + len(self._events) + len(self._triggers) + (1 if self._busy else 0)
 
     def close(self, timeout: float) -> None:
         """Write what is pending (waiting up to ``timeout`` s), then close the file."""
@@ -182,28 +229,49 @@ class FaultStore:
             if self._thread.is_alive():
                 log.warning("fault store: the last writes did not finish within %g s", timeout)
                 return
-        elif self._db is not None and (self._faults or self._events):
-            # never started (or the writer gave up): what is pending is written here
-            try:
-                self._write(self._faults, self._events)
-            except sqlite3.Error as exc:
-                log.error("fault store %s: the last write failed (%s)", self.path, exc)
+        self._write_now()  # never started (or the writer gave up): what is pending is written here
         self._close_db()
+        self.enabled = False
+
+    def _write_now(self) -> None:
+        """Write what is pending on the calling thread (no writer thread runs)."""
+        with self._lock:
+            faults, self._faults = self._faults, {}
+            events, self._events = self._events, []
+            triggers, self._triggers = self._triggers, {}
+            then, self._written = self._written, []
+        if self._db is None or not (faults or events or triggers):
+            for fn in then:
+                fn()
+            return
+        try:
+            self._write(faults, events, triggers)
+            self.writes += 1
+        except sqlite3.Error as exc:
+            self.write_errors += 1
+            self.last_write_error = f"{type(exc).__name__}: {exc}"[:300]
+            log.error("store %s: a write failed (%s)", self.path, exc)
+        for fn in then:
+            fn()
 
     # ---- the writer thread -------------------------------------------------------------------------
     def _run(self) -> None:
         while True:
             with self._lock:
-                while not self._faults and not self._events and not self._closing:
+                while not self._faults and not self._events and not self._triggers and not self._closing:
                     self._wake.wait()
-                if not self._faults and not self._events:
+                if not self._faults and not self._events and not self._triggers:
                     return
                 faults, self._faults = self._faults, {}
                 events, self._events = self._events, []
+                triggers, self._triggers = self._triggers, {}
+                then, self._written = self._written, []
                 self._busy = True
             try:
-                self._write(faults, events)
+                self._write(faults, events, triggers)
                 self.writes += 1
+                for fn in then:
+                    fn()
             except sqlite3.Error as exc:
                 self.write_errors += 1
                 self.last_write_error = f"{type(exc).__name__}: {exc}"[:300]
@@ -213,6 +281,9 @@ class FaultStore:
                 with self._lock:
                     for code, record in faults.items():
                         self._faults.setdefault(code, record)  # a newer state of a fault wins
+                    for trigger_id, doc in triggers.items():
+                        self._triggers.setdefault(trigger_id, doc)
+                    self._written[:0] = then
                     self._events[:0] = events
                     del self._events[:-MAX_EVENTS]
                     closing = self._closing
@@ -222,7 +293,8 @@ class FaultStore:
             finally:
                 self._busy = False
 
-    def _write(self, faults: dict[str, dict[str, Any] | None], events: list[tuple[int, dict[str, Any]]]) -> None:
+    def _write(self, faults: dict[str, dict[str, Any] | None], events: list[tuple[int, dict[str, Any]]],
+               triggers: dict[str, bytes | None]) -> None:
         db = self._db
         now = time.time_ns()
         db.execute("BEGIN IMMEDIATE")
@@ -239,6 +311,12 @@ class FaultStore:
                 db.executemany("INSERT OR REPLACE INTO events (id, doc) VALUES (?, ?)",
                                [(i, json.dumps(e, separators=(",", ":"))) for i, e in events])
                 db.execute("DELETE FROM events WHERE id <= ?", (events[-1][0] - MAX_EVENTS,))
+            gone = [(i,) for i, doc in triggers.items() if doc is None]
+            if gone:
+                db.executemany("DELETE FROM triggers WHERE id = ?", gone)
+            kept = [(i, doc.decode()) for i, doc in triggers.items() if doc is not None]
+            if kept:
+                db.executemany("INSERT OR REPLACE INTO triggers (id, doc) VALUES (?, ?)", kept)
             db.execute("COMMIT")
         except BaseException:
             try:
@@ -246,3 +324,23 @@ class FaultStore:
             except sqlite3.Error:
                 pass
             raise
+
+
+def make_private_dir(path: str) -> None:
+    """``path`` made 0700 if it is not there (its parents as the umask says); one that is stays as it is."""
+    if not os.path.isdir(path):
+        os.makedirs(path, exist_ok=True)
+        os.chmod(path, DIR_MODE)
+
+
+def private_files(path: str) -> None:
+    """The database file made 0600 before SQLite opens it (SQLite gives its -wal and -shm the file's
+    mode), and an existing file, -wal or -shm of a looser mode narrowed to 0600."""
+    fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, FILE_MODE)
+    os.close(fd)
+    for name in (path, path + "-wal", path + "-shm"):
+        try:
+            if os.stat(name).st_mode & 0o777 != FILE_MODE:
+                os.chmod(name, FILE_MODE)
+        except FileNotFoundError:
+            pass

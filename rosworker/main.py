@@ -223,12 +223,16 @@ class Worker:
                                 restore=self.restart)
         commands.handlers.update(operations.handlers)
         operations.repeat(OPERATIONS_CHECK_EVERY)
+        # lifecycle status: managed nodes' get_state, through the operations' service clients
+        from .lifecycle import LifecycleStates
+        commands.handlers.update(LifecycleStates(node, operations.services).handlers)
         # faults: /diagnostics as SOVD faults, kept in the state dir's fault store (rosworker/faults.py)
         from .faults import FaultManager
         from .faults import handlers as fault_handlers
         from .faultstore import FaultStore
-        faults = FaultManager(node, executor, pool, stats,
-                              FaultStore(cfg.state_dir or config.default_state_dir(os.environ)), graph=graph,
+        # the state dir's SQLite store: the faults and the triggers (rosworker/faultstore.py)
+        store = FaultStore(cfg.state_dir or config.default_state_dir(os.environ))
+        faults = FaultManager(node, executor, pool, stats, store, graph=graph,
                               endpoints=endpoints, send=streams.send,
                               confirm_count=cfg.fault_confirm_count, confirm_s=cfg.fault_confirm_s,
                               heal_count=cfg.fault_heal_count, stale_s=cfg.fault_stale_s,
@@ -245,11 +249,13 @@ class Worker:
                           max_nodes=cfg.log_max_nodes)
         executor.guarded("subscribing to /rosout", logbook.start)
         commands.handlers.update(logbook.handlers)
-        # Triggers (rosworker/triggers.py): their commands, their store, restored before discovery.
-        from .triggers import TriggerRegistry, events_sender, store_path
-        triggers = TriggerRegistry(node, executor, stats, endpoints, events_sender(streams),
+        # Triggers (rosworker/triggers.py): their commands, their rows in the store, restored before discovery.
+        from .triggers import LEGACY_FILE, TriggerRegistry, events_sender
+        legacy = os.path.join((os.environ.get("STATE_DIRECTORY") or "").split(":")[0] or cfg.runtime_dir,
+                              LEGACY_FILE)  # where an older gateway kept them
+        triggers = TriggerRegistry(node, executor, stats, endpoints, events_sender(streams), store,
                                    max_triggers=cfg.max_triggers, max_per_client=cfg.max_triggers_per_client,
-                                   store_path=store_path(cfg.trigger_store, cfg.runtime_dir))
+                                   max_bytes=cfg.max_trigger_bytes, legacy_path=legacy)
         triggers.sources["faults"].bind(faults)  # faults and logs triggers (rosworker/triggersources.py)
         triggers.sources["logs"].bind(logbook)
         triggers.restore(restart=bool(self.restart))
@@ -286,7 +292,6 @@ class Worker:
             self._rewarm(executor, pool, rewarm, time.monotonic() + REWARM_FOR)
         streams.restore(subscriptions)
         state.start()
-        triggers.start()  # triggers: the store's writer
 
         try:
             executor.bind()
@@ -310,14 +315,17 @@ class Worker:
             # Write what is pending and answer the commands that waited for it; from here on
             # a change (a queued command drained below) is written on this thread.
             state.close(STATE_FLUSH_WAIT)
-            triggers.close()  # triggers: their store written, their subscriptions destroyed
+            triggers.close()  # triggers: their subscriptions destroyed (their rows are in the store)
             executor.run_posted()
             executor.guarded("the pool's shutdown", pool.shutdown)
             executor.guarded("the operations' shutdown", operations.shutdown)  # operations
             executor.guarded("the publishers' shutdown", publishers.shutdown)
-            executor.guarded("the fault store's shutdown", faults.shutdown, STATE_FLUSH_WAIT)  # faults
+            executor.guarded("the faults' shutdown", faults.shutdown)  # faults
             executor.guarded("the logs' shutdown", logbook.shutdown)  # logs (issue 22)
             executor.linger()
+            # the store last: what the drained commands changed is written too
+            executor.guarded("the store's shutdown", store.close, STATE_FLUSH_WAIT)
+            executor.run_posted()
         finally:
             streams.close()
             signal.set_wakeup_fd(-1)  # before the executor closes the pipe

@@ -13,13 +13,20 @@ thread.
 
 One command is one *operation* per node, written as a generator that yields
 ``(service, request)`` and is sent each response (:meth:`ParameterClients._advance`);
-the operations of a multi-node command (a listing, a reset of everything) run at
-once and the command is answered when the last one ends.  An operation has
-``parameter_service_timeout`` from its start; past it the node is answered
-``node-unavailable`` and remembered for ``parameter_negative_cache_s``, so a
-hung node costs one request its timeout and the next ones nothing (medkit's
-issues 318 and 531).  A node whose services are not in the graph is answered at
-once.
+the operations of a multi-node command (a listing, a reset of everything) start
+at once and the command is answered when the last one ends.  An operation needs
+its node's client set; when all ``max_parameter_clients`` sets are held by
+operations in flight, it waits in line (first come, first served) for one to
+be free, within the request's deadline (``pool-busy`` for a node still in line
+when the deadline comes), so a component of 200 nodes lists all of them.  Once
+it has its clients, the node's services have ``parameter_service_timeout`` to
+be matched, and the node as much again from the operation's first request to
+answer (a read unanswered for ``RESEND_AFTER`` s is sent again: a new client's
+first reply can be lost before the server has matched it); past either the
+node is answered ``node-unavailable`` and remembered for
+``parameter_negative_cache_s``, so a hung node costs one request its timeout
+and the next ones nothing (medkit's issues 318 and 531).  A node whose services
+are not in the graph is answered at once.
 
 Defaults: ROS 2 has no "default" service.  The first time an operation reaches a
 node, its parameters are read and kept as that node's record, keyed by the
@@ -66,6 +73,14 @@ EVENTS_TOPIC = "/parameter_events"
 EVENTS_PER_DRAIN = 1000      # parameter events taken at most per look (the rest wait for the next)
 MAX_RECORDS = 4096           # nodes whose defaults are kept (the oldest record goes first)
 MAX_NODES_PER_COMMAND = 256  # nodes one listing or reset may name
+ANSWER_MARGIN = 0.25         # seconds before the request's deadline by which every operation has ended
+# A new client whose server shows up waits this long more before its first request: the server's reply
+# writer may not have matched the client's reader yet (rclpy only tells about the request side), and a
+# reply sent before that is lost (seen with hundreds of new clients at once).  services.py does the same.
+SETTLE = 0.25
+READS = ("list", "describe", "get")   # requests that may be sent again: asking twice changes nothing
+RESEND_AFTER = 0.5                   # seconds a read waits for its answer before it is sent again
+MAX_SENDS = 3                        # times one read is sent at most
 
 T = ParameterType
 TYPE_NAMES = {
@@ -259,6 +274,11 @@ def _outcome(result: Any, key: str) -> dict[str, Any]:
     return {"ok": True, key: result}
 
 
+def _limit(task: Task) -> float:
+    """When a command's operations end at the latest: before the HTTP side stops waiting for the answer."""
+    return task.deadline - ANSWER_MARGIN
+
+
 def _answer(task: Task) -> Callable[[Any], None]:
     def done(result: Any) -> None:
         if isinstance(result, IpcError):
@@ -270,15 +290,18 @@ def _answer(task: Task) -> Callable[[Any], None]:
 
 # ---- the clients ----------------------------------------------------------------------------
 class NodeClients:
-    """One node's four parameter clients, the calls open on each and when they were last used."""
+    """One node's four parameter clients, the calls open on each, the operations that hold them and when
+    they were last used."""
 
-    __slots__ = ("fqn", "clients", "pending", "used")
+    __slots__ = ("fqn", "clients", "pending", "used", "ops", "ready")
 
     def __init__(self, fqn: str, clients: dict[str, Any]):
         self.fqn = fqn
         self.clients = clients
         self.pending: dict[str, dict[int, tuple[Op, int]]] = {kind: {} for kind in clients}
         self.used = time.monotonic()
+        self.ops = 0              # operations in flight on this set: it is not given to another node
+        self.ready: dict[str, float] = {}  # kind -> when its server was first seen matched
 
     def open_calls(self) -> int:
         return sum(len(p) for p in self.pending.values())
@@ -289,18 +312,26 @@ class Op:
 
     A step is one request, or a list of requests sent at once (a read's value and descriptor)."""
 
-    __slots__ = ("fqn", "gen", "done", "deadline", "steps", "many", "responses", "unsent", "sent")
+    __slots__ = ("fqn", "gen", "done", "deadline", "answering", "limit", "holds", "steps", "many", "responses",
+                 "unsent", "sent", "sent_at")
 
-    def __init__(self, fqn: str, gen: Operation, done: Callable[[Any], None], deadline: float):
+    def __init__(self, fqn: str, gen: Operation, done: Callable[[Any], None], deadline: float | None,
+                 limit: float):
         self.fqn = fqn
         self.gen = gen
         self.done = done          # called once with the result or an IpcError
+        # the node's time: parameter_service_timeout for its services to match once the operation has its
+        # client set, then as much from its first request (None: in line for a client set)
         self.deadline = deadline
+        self.answering = False
+        self.limit = limit        # the request's: past it the operation ends whatever it waits for
+        self.holds: NodeClients | None = None   # its node's client set, once it has it
         self.steps: list[Step] = []
         self.many = False         # the step was a list: the generator gets a list of responses
         self.responses: list[Any] = []
         self.unsent: set[int] = set()            # requests of the step waiting for their service
-        self.sent: dict[int, tuple[str, int]] = {}  # request index -> (kind, sequence number)
+        self.sent: dict[int, list[tuple[str, int]]] = {}  # request index -> [(kind, sequence number)] sent
+        self.sent_at: dict[int, float] = {}              # request index -> when it was last sent
 
 
 class _Own:
@@ -336,6 +367,7 @@ class ParameterClients:
         self.own_fqn = (ns.rstrip("/") + "/" + node.get_name()) if ns != "/" else "/" + node.get_name()
         self._nodes: collections.OrderedDict[str, NodeClients] = collections.OrderedDict()
         self._ops: set[Op] = set()
+        self._line: collections.deque[Op] = collections.deque()  # operations waiting for a client set
         # fqn -> (monotonic time until which it is answered at once, the start key of the node that did not answer)
         self._unavailable: dict[str, tuple[float, Any]] = {}
         self._records: collections.OrderedDict[str, Record] = collections.OrderedDict()
@@ -361,12 +393,21 @@ class ParameterClients:
                     entry = pending.pop(header.request_id.sequence_number, None)
                     if entry is not None and entry[0] in self._ops:
                         self._answered(entry[0], entry[1], response)
+        for op in list(self._line):  # first come, first served, as client sets come free
+            if op in self._ops:
+                self._dispatch(op)
+                if op in self._ops and op.holds is None:
+                    break  # no set came free for it: none for those behind it either
         now = time.monotonic()
         for op in list(self._ops):
-            if op.unsent and op in self._ops:
+            if op.unsent and op.holds is not None and op in self._ops:
                 self._dispatch(op)
-            if op in self._ops and now >= op.deadline:
+            if op.sent and op in self._ops:
+                self._resend_reads(op, now)
+            if op in self._ops and op.deadline is not None and now >= op.deadline:
                 self._timed_out(op)
+            elif op in self._ops and now >= op.limit:
+                self._out_of_time(op)
         self._gauges()
 
     def sweep_idle(self) -> None:
@@ -374,7 +415,7 @@ class ParameterClients:
         self._drain_events()
         cutoff = time.monotonic() - self.idle_s
         for fqn, clients in list(self._nodes.items()):
-            if clients.used < cutoff and not clients.open_calls():
+            if clients.used < cutoff and not clients.ops and not clients.open_calls():
                 self._destroy(fqn)
         now = time.monotonic()
         for fqn in [f for f, (until, _) in self._unavailable.items() if until <= now]:
@@ -388,8 +429,9 @@ class ParameterClients:
             self._destroy(fqn)
 
     # ---- the commands --------------------------------------------------------------------
-    def run(self, fqn: str, gen: Operation, done: Callable[[Any], None]) -> None:
-        """Start one operation on ``fqn``; ``done`` gets its result or an IpcError (maybe at once)."""
+    def run(self, fqn: str, gen: Operation, done: Callable[[Any], None], limit: float | None = None) -> None:
+        """Start one operation on ``fqn``; ``done`` gets its result or an IpcError (maybe at once), by
+        ``limit`` (a ``time.monotonic()``: the request's deadline) at the latest."""
         self._drain_events()
         cached = self._unavailable.get(fqn)
         now = time.monotonic()
@@ -404,13 +446,17 @@ class ParameterClients:
                           f"recently, asked again after {math.ceil(until - now)} s",
                           {"node": fqn, "retry_after_s": max(1, math.ceil(until - now))}))
             return
-        op = Op(fqn, gen, done, now + self.timeout)
+        # The node's time starts with its first request; until then (a client set to wait for, its
+        # services to match) the request's deadline bounds it.
+        op = Op(fqn, gen, done, None, now + 2 * self.timeout if limit is None else max(now, limit))
         self._ops.add(op)
         self._advance(op, None)
         self._gauges()
 
-    def run_all(self, fqns: list[str], make: Callable[[str], Operation], done: Callable[[dict], None]) -> None:
-        """One operation per node at once; ``done({fqn: result or IpcError})`` after the last."""
+    def run_all(self, fqns: list[str], make: Callable[[str], Operation], done: Callable[[dict], None],
+                limit: float | None = None) -> None:
+        """One operation per node, started at once (those past the client cap wait in line);
+        ``done({fqn: result or IpcError})`` after the last, by ``limit`` at the latest."""
         results: dict[str, Any] = {}
         if not fqns:
             done(results)
@@ -424,7 +470,7 @@ class ParameterClients:
             return finished
 
         for fqn in fqns:
-            self.run(fqn, make(fqn), one(fqn))
+            self.run(fqn, make(fqn), one(fqn), limit)
 
     # ---- the IPC commands (ipc/PROTOCOL.md "param_*") ------------------------------------------
     def handlers(self) -> dict[str, Callable[[Task], None]]:
@@ -433,25 +479,27 @@ class ParameterClients:
 
     def cmd_list(self, task: Task) -> None:
         self.run_all(_fqns(task.args), self.op_list,
-                     lambda results: task.reply({"nodes": {f: _outcome(r, "parameters") for f, r in results.items()}}))
+                     lambda results: task.reply({"nodes": {f: _outcome(r, "parameters") for f, r in results.items()}}),
+                     _limit(task))
 
     def cmd_get(self, task: Task) -> None:
         fqn = _fqn(task.args.get("node"))
-        self.run(fqn, self.op_get(fqn, _name(task.args)), _answer(task))
+        self.run(fqn, self.op_get(fqn, _name(task.args)), _answer(task), _limit(task))
 
     def cmd_set(self, task: Task) -> None:
         fqn = _fqn(task.args.get("node"))
         if "value" not in task.args:
             raise IpcError("bad-request", "value: missing")
-        self.run(fqn, self.op_set(fqn, _name(task.args), task.args["value"]), _answer(task))
+        self.run(fqn, self.op_set(fqn, _name(task.args), task.args["value"]), _answer(task), _limit(task))
 
     def cmd_reset(self, task: Task) -> None:
         fqn = _fqn(task.args.get("node"))
-        self.run(fqn, self.op_reset(fqn, _name(task.args)), _answer(task))
+        self.run(fqn, self.op_reset(fqn, _name(task.args)), _answer(task), _limit(task))
 
     def cmd_reset_all(self, task: Task) -> None:
         self.run_all(_fqns(task.args), self.op_reset_all,
-                     lambda results: task.reply({"nodes": {f: _outcome(r, "result") for f, r in results.items()}}))
+                     lambda results: task.reply({"nodes": {f: _outcome(r, "result") for f, r in results.items()}}),
+                     _limit(task))
 
     # ---- the operations (generators: yield (service, request), get the response) -------------
     def op_list(self, fqn: str) -> Operation:
@@ -592,14 +640,17 @@ class ParameterClients:
         op.steps = step if op.many else [step]
         op.responses = [None] * len(op.steps)
         op.unsent = set(range(len(op.steps)))
-        op.sent = {}
+        op.sent, op.sent_at = {}, {}
         if op.fqn == self.own_fqn:
             self._local(op)
         else:
             self._dispatch(op)
 
     def _answered(self, op: Op, index: int, response: Any) -> None:
-        op.sent.pop(index, None)
+        sent = op.sent.pop(index, None)
+        if sent is None:
+            return  # a second answer to a request sent twice
+        self._forget(op, sent)
         op.responses[index] = response
         if not op.sent and not op.unsent:
             self._advance(op, op.responses if op.many else op.responses[0])
@@ -614,29 +665,80 @@ class ParameterClients:
         self._advance(op, op.responses if op.many else op.responses[0])
 
     def _dispatch(self, op: Op) -> None:
-        """Send the step's requests whose services are ready (the others wait for the next round)."""
-        try:
-            clients = self._clients_for(op.fqn)
-        except IpcError as exc:
-            self._finish(op, exc)
-            return
+        """Send the step's requests whose services are ready (the others wait for the next round); an
+        operation without its client set gets in line for one."""
+        if op.holds is None:
+            try:
+                clients = self._clients_for(op.fqn, queued=bool(self._line) and self._line[0] is not op)
+            except Exception as exc:  # noqa: BLE001 - rclpy refused a client: this node's answer
+                self._finish(op, IpcError("node-unavailable", f"No parameter clients for {op.fqn}: {exc}",
+                                          {"node": op.fqn, "retry_after_s": 2}))
+                return
+            if clients is None:
+                if op not in self._line:
+                    self._line.append(op)
+                    self.stats.parameter_waits += 1
+                return
+            if self._line and self._line[0] is op:
+                self._line.popleft()
+            elif op in self._line:
+                self._line.remove(op)
+            op.holds = clients
+            clients.ops += 1
+            op.deadline = time.monotonic() + self.timeout  # its services have this long to be matched
+        clients = op.holds
         clients.used = time.monotonic()
         for i in sorted(op.unsent):
             kind, request = op.steps[i]
             client = clients.clients[kind]
-            if not client.service_is_ready():
-                if not self._offers_services(op.fqn):
-                    self._finish(op, IpcError("node-unavailable", f"Parameter service not available for node: "
-                                              f"{op.fqn} (the node has no parameter services, or has gone)",
-                                              {"node": op.fqn, "retry_after_s": 2}))
-                    return
-                continue  # discovered but not matched yet: tried again on the next round
+            ready = clients.ready.get(kind)
+            if ready is None:
+                if not client.service_is_ready():
+                    if not self._offers_services(op.fqn):
+                        self._finish(op, IpcError("node-unavailable", "Parameter service not available for node: "
+                                                  f"{op.fqn} (the node has no parameter services, or has gone)",
+                                                  {"node": op.fqn, "retry_after_s": 2}))
+                        return
+                    continue  # discovered but not matched yet: tried again on the next round
+                ready = clients.ready[kind] = time.monotonic()
+            if time.monotonic() - ready < SETTLE:
+                continue  # the server's reply writer may not have matched the client's reader yet
             with client.handle:
                 seq = client.handle.send_request(request)
             clients.pending[kind][seq] = (op, i)
-            op.sent[i] = (kind, seq)
+            op.sent[i] = [(kind, seq)]
+            op.sent_at[i] = time.monotonic()
+            if not op.answering:
+                op.answering = True
+                op.deadline = op.sent_at[i] + self.timeout  # the node's time to answer starts with its first request
             op.unsent.discard(i)
             self.stats.parameter_calls += 1
+
+    def _resend_reads(self, op: Op, now: float) -> None:
+        """A read unanswered for ``RESEND_AFTER`` s is sent again (at most ``MAX_SENDS`` times in all): a
+        new client's first reply can be lost before the server's reply writer matched it; the first
+        answer counts.  A set is never sent twice."""
+        clients = op.holds
+        if clients is None:
+            return
+        for i, sent in op.sent.items():
+            kind = sent[0][0]
+            if kind in READS and len(sent) < MAX_SENDS and now - op.sent_at[i] >= RESEND_AFTER:
+                client = clients.clients[kind]
+                with client.handle:
+                    seq = client.handle.send_request(op.steps[i][1])
+                clients.pending[kind][seq] = (op, i)
+                sent.append((kind, seq))
+                op.sent_at[i] = now
+                self.stats.parameter_calls += 1
+                self.stats.parameter_resends += 1
+
+    def _forget(self, op: Op, sent: list[tuple[str, int]]) -> None:
+        """No answer is awaited any more for these requests (a late one is dropped)."""
+        clients = self._nodes.get(op.fqn)
+        if clients is not None:
+            for kind, seq in sent:
+                clients.pending[kind].pop(seq, None)
 
     def _offers_services(self, fqn: str) -> bool:
         namespace, _, name = fqn.rpartition("/")
@@ -645,6 +747,17 @@ class ParameterClients:
         except Exception:  # the node is not in the graph (NodeNameNonExistentError)
             return False
         return any(s == f"{fqn}/get_parameters" for s, _ in services)
+
+    def _out_of_time(self, op: Op) -> None:
+        """The request's deadline came first: not the node's fault, so nothing is remembered of it."""
+        if op.holds is None:
+            self._finish(op, IpcError("pool-busy", f"{op.fqn} waited in line for a parameter client set until "
+                                      f"the request's deadline (all {self.max_clients} were in use: "
+                                      "max_parameter_clients); retry shortly",
+                                      {"node": op.fqn, "max_parameter_clients": self.max_clients}))
+        else:
+            self._finish(op, IpcError("deadline-exceeded", f"The request's deadline came before {op.fqn} "
+                                      "answered (it waited in line for a client set first)", {"node": op.fqn}))
 
     def _timed_out(self, op: Op) -> None:
         self.stats.parameter_timeouts += 1
@@ -661,10 +774,13 @@ class ParameterClients:
         if op not in self._ops:
             return
         self._ops.discard(op)
-        clients = self._nodes.get(op.fqn)
-        if clients is not None:
-            for kind, seq in op.sent.values():
-                clients.pending[kind].pop(seq, None)
+        if op in self._line:
+            self._line.remove(op)
+        if op.holds is not None:
+            op.holds.ops -= 1
+            op.holds = None
+        for sent in op.sent.values():
+            self._forget(op, sent)
         op.sent = {}
         op.unsent = set()
         op.gen.close()
@@ -672,16 +788,19 @@ class ParameterClients:
         op.done(result)
 
     # ---- the pool --------------------------------------------------------------------------
-    def _clients_for(self, fqn: str) -> NodeClients:
+    def _clients_for(self, fqn: str, queued: bool = False) -> NodeClients | None:
+        """The node's client set, made (the least recently used free one goes at the cap); None when
+        every set is held by an operation in flight, or ``queued`` (others wait in line before it)."""
         clients = self._nodes.get(fqn)
         if clients is not None:
             self._nodes.move_to_end(fqn)
             return clients
+        if queued:
+            return None
         while len(self._nodes) >= self.max_clients:
-            idle = next((f for f, c in self._nodes.items() if not c.open_calls()), None)
+            idle = next((f for f, c in self._nodes.items() if not c.ops and not c.open_calls()), None)
             if idle is None:
-                raise IpcError("pool-busy", f"All {self.max_clients} parameter client sets have calls open; "
-                               "retry shortly", {"max_parameter_clients": self.max_clients})
+                return None
             self._destroy(idle)
         made = {}
         try:
@@ -710,6 +829,7 @@ class ParameterClients:
     def _gauges(self) -> None:
         self.stats.parameter_clients = len(self._nodes)
         self.stats.parameter_calls_in_flight = len(self._ops)
+        self.stats.parameter_waiting = len(self._line)
 
     # ---- /parameter_events ---------------------------------------------------------------------
     def drain_events(self) -> None:

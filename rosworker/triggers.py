@@ -41,11 +41,22 @@ after it fired still gets that event (``trig_open`` hands the newest event
 that no stream has been opened for yet).  Deletion and expiry are control
 frames ``t|c|<id>|``.
 
-Store.  Every trigger's record is made once per change and written by the
-store's thread to ``triggers.json`` (``trigger_store``); a command that
-changed the set is answered once written.  A restarted ROS worker restores
-them all; a new gateway only the ``persistent`` ones.  They are restored
-before their topics are discovered (the topic is subscribed once it shows).
+Store.  A trigger's record is made once per change and written as one row
+of the ``triggers`` table of the state directory's SQLite store
+(``rosworker/faultstore.py``, beside the faults) by the store's thread; a
+command that changed a trigger is answered once its row is written.  A
+restarted ROS worker restores them all; a new gateway only the
+``persistent`` ones (the others' rows are deleted).  They are restored before
+their topics are discovered (the topic is subscribed once it shows).  A
+``triggers.json`` left by an older gateway is imported once (and renamed
+``triggers.json.imported``).
+
+Bounds.  What a trigger holds is small: a ``target_value`` of at most
+``TARGET_VALUE_MAX`` bytes of JSON, a ``path`` of ``jsonpointer.MAX_LENGTH``
+characters (the HTTP side refuses more with a 400 that names the limit); the
+records of all triggers together at most ``max_trigger_bytes``, and at most
+``max_triggers`` of them: past either the next one is refused
+(``triggers-full``) and nothing held is touched.
 """
 
 from __future__ import annotations
@@ -55,7 +66,6 @@ import logging
 import math
 import os
 import secrets
-import threading
 import time
 from collections.abc import Callable
 from typing import Any
@@ -63,7 +73,6 @@ from typing import Any
 import orjson
 import zmq
 
-from common.process import write_atomic
 from ipc import events, jsonpointer, protocol
 from ipc.errors import IpcError
 from ipc.topics import InvalidTopic, normalize_topic
@@ -71,6 +80,7 @@ from ipc.topics import InvalidTopic, normalize_topic
 from . import msgtypes, qos
 from .encode import to_json
 from .executor import RosExecutor, Task, Timer
+from .faultstore import FaultStore
 from .graph import Endpoints
 from .stats import Stats
 
@@ -87,8 +97,10 @@ REPLAY_MAX_BYTES = 256 * 1024  # an event larger than this is not kept for a str
 ERROR_EVERY = 1.0         # seconds between two error events of one topic (undecodable messages)
 SAVE_WAIT = 1.0
 MAX_LIFETIME = 2**31 - 1
-FILE_NAME = "triggers.json"
+LEGACY_FILE = "triggers.json"    # an older gateway's store: imported once
+LEGACY_MAX_BYTES = 64 * 2**20    # a larger one is not read
 TARGET_MAX = 256 * 1024  # characters of a faults or logs trigger's target (the entity's node names, JSON)
+TARGET_VALUE_MAX = 4096  # bytes of the JSON of an OnChangeTo target_value
 
 
 # ---- conditions -----------------------------------------------------------------------------------
@@ -149,6 +161,13 @@ def check_condition(value: Any) -> dict[str, Any]:
     if kind == "OnChangeTo":
         if "target_value" not in value:
             raise IpcError("bad-request", "condition: OnChangeTo needs target_value")
+        try:
+            size = len(json.dumps(value["target_value"], separators=(",", ":")).encode())
+        except (TypeError, ValueError, RecursionError):
+            raise IpcError("bad-request", "condition: target_value is not a JSON value") from None
+        if size > TARGET_VALUE_MAX:
+            raise IpcError("bad-request", f"condition: target_value too large ({size} bytes of JSON; "
+                           f"at most {TARGET_VALUE_MAX})", {"max_bytes": TARGET_VALUE_MAX})
         out["target_value"] = value["target_value"]
     elif kind in ("EnterRange", "LeaveRange"):
         low, high = value.get("lower_bound"), value.get("upper_bound")
@@ -164,7 +183,7 @@ def check_condition(value: Any) -> dict[str, Any]:
 class Trigger:
     __slots__ = ("id", "collection", "entity_id", "resource", "source", "target", "bytes", "path",
                  "condition", "multishot", "persistent", "lifetime", "created_at_ns", "client", "status",
-                 "deadline", "tokens", "previous", "seq", "last_event", "opened_seq")
+                 "deadline", "tokens", "previous", "seq", "last_event", "opened_seq", "size")
 
     FIELDS = ("id", "collection", "entity_id", "resource", "source", "target", "bytes", "path", "condition",
               "multishot", "persistent", "lifetime", "created_at_ns", "client", "status")
@@ -178,6 +197,7 @@ class Trigger:
         self.seq = 0
         self.last_event: tuple[int, int, bytes | None, str | None] | None = None
         self.opened_seq = 0
+        self.size = 0                           # bytes of its record, as last written
 
     @property
     def expires_at_ns(self) -> int | None:
@@ -368,82 +388,11 @@ def _never_called(_msg) -> None:  # pragma: no cover - trigger subscriptions are
     pass
 
 
-# ---- the store ------------------------------------------------------------------------------------------
-class TriggerStore:
-    """``triggers.json``: written by a thread of its own; ``then`` (a reply) posted back once written."""
-
-    def __init__(self, path: str, post: Callable[[Callable[[], None]], None]):
-        self.path = path
-        self._post = post
-        self._lock = threading.Condition()
-        self._pending: tuple[int, list[bytes]] | None = None
-        self._waiting: list[tuple[int, Callable[[], None]]] = []
-        self._written = 0
-        self._closing = False
-        self._thread: threading.Thread | None = None
-
-    def start(self) -> None:
-        self._thread = threading.Thread(target=self._run, name="trigger-store-writer", daemon=True)
-        self._thread.start()
-
-    def load(self) -> list[dict[str, Any]]:
-        try:
-            with open(self.path, "rb") as fh:
-                data = json.loads(fh.read())
-        except (OSError, ValueError):
-            return []
-        items = data.get("triggers") if isinstance(data, dict) else None
-        return [t for t in items if isinstance(t, dict)] if isinstance(items, list) else []
-
-    def submit(self, version: int, records: list[bytes], then: Callable[[], None] | None = None) -> None:
-        with self._lock:
-            self._pending = (version, records)
-            if then is not None:
-                self._waiting.append((version, then))
-            threaded = self._thread is not None and not self._closing
-            self._lock.notify()
-        if not threaded:
-            self._write_pending()
-
-    def close(self, timeout: float) -> None:
-        with self._lock:
-            self._closing = True
-            self._lock.notify()
-        if self._thread is not None:
-            self._thread.join(timeout)
-
-    def _run(self) -> None:
-        while True:
-            with self._lock:
-                while self._pending is None and not self._closing:
-                    self._lock.wait()
-                if self._pending is None:
-                    return
-            self._write_pending()
-
-    def _write_pending(self) -> None:
-        with self._lock:
-            job, self._pending = self._pending, None
-        if job is None:
-            return
-        version, records = job
-        try:
-            write_atomic(self.path, b'{"triggers":[' + b",".join(records) + b"]}")
-        except OSError as exc:
-            log.warning("could not save the triggers to %s: %s", self.path, exc)
-        with self._lock:
-            self._written = max(self._written, version)
-            ready = [fn for v, fn in self._waiting if v <= self._written]
-            self._waiting = [(v, fn) for v, fn in self._waiting if v > self._written]
-        for fn in ready:
-            self._post(fn)
-
-
 # ---- the registry ---------------------------------------------------------------------------------------
 class TriggerRegistry:
     def __init__(self, node, executor: RosExecutor, stats: Stats, endpoints: Endpoints,
-                 send: Callable[[list[bytes]], None], *, max_triggers: int, max_per_client: int,
-                 store_path: str):
+                 send: Callable[[list[bytes]], None], store: FaultStore, *, max_triggers: int,
+                 max_per_client: int, max_bytes: int, legacy_path: str = ""):
         self.node = node
         self.executor = executor
         self.stats = stats
@@ -451,16 +400,18 @@ class TriggerRegistry:
         self._send = send
         self.max_triggers = max_triggers
         self.max_per_client = max_per_client
+        self.max_bytes = max_bytes
+        self.bytes = 0                          # of the records of the triggers held
         self.triggers: dict[str, Trigger] = {}
-        self._records: dict[str, bytes] = {}
         self._timers: dict[str, Timer] = {}
         self.per_client: dict[str, int] = {}
-        self.version = 0
-        self.store = TriggerStore(store_path, executor.post)
+        self.store = store
+        self.legacy_path = legacy_path
         self.sources = {kind: cls(self) for kind, cls in SOURCES.items()}
         for kind, source in self.sources.items():
             executor.add_poller(f"{kind} triggers", source.active, source.poll)
         stats.max_triggers = max_triggers
+        stats.max_trigger_bytes = max_bytes
         self.handlers: dict[str, Callable[[Task], None]] = {
             "trig_create": self._cmd_create, "trig_list": self._cmd_list, "trig_get": self._cmd_get,
             "trig_update": self._cmd_update, "trig_delete": self._cmd_delete, "trig_open": self._cmd_open,
@@ -469,10 +420,12 @@ class TriggerRegistry:
     # ---- boot and end ---------------------------------------------------------------------------
     def restore(self, restart: bool) -> None:
         """The triggers of the store: all of them after a ROS worker restart, the persistent ones at a
-        new gateway's first boot.  Expired and terminated ones are dropped."""
+        new gateway's first boot.  Expired and terminated ones are dropped (their rows deleted)."""
         now_ns = time.time_ns()
         kept = 0
-        for item in self.store.load():
+        rows = self.store.load_triggers()
+        items = [item for _, item in rows if isinstance(item, dict)] + self._legacy()
+        for item in items:
             try:
                 fields = {name: item[name] for name in Trigger.FIELDS}
                 if fields["status"] != "active" or fields["source"] not in self.sources \
@@ -492,24 +445,41 @@ class TriggerRegistry:
                 if not isinstance(expires, int) or expires <= now_ns:
                     continue
                 trigger.deadline = time.monotonic() + (expires - now_ns) / 1e9
-            if len(self.triggers) >= self.max_triggers:
-                break
+            if len(self.triggers) >= self.max_triggers or trigger.id in self.triggers:
+                continue
             self._add(trigger)
             kept += 1
+        for trigger_id, _ in rows:  # what was not restored is not kept either
+            if trigger_id not in self.triggers:
+                self.store.put_trigger(trigger_id, None)
         if kept:
             log.info("restored %d triggers", kept)
-        self._save()
 
-    def start(self) -> None:
-        self.store.start()
+    def _legacy(self) -> list[dict[str, Any]]:
+        """The triggers of an older gateway's ``triggers.json``, read once (the file is then renamed)."""
+        path = self.legacy_path
+        try:
+            if not path or not os.path.isfile(path) or os.path.getsize(path) > LEGACY_MAX_BYTES:
+                return []
+            with open(path, "rb") as fh:
+                data = json.loads(fh.read())
+            os.replace(path, path + ".imported")
+        except (OSError, ValueError) as exc:
+            log.warning("could not import the triggers of %s: %s", path, exc)
+            return []
+        items = data.get("triggers") if isinstance(data, dict) else None
+        found = [t for t in items if isinstance(t, dict)] if isinstance(items, list) else []
+        log.info("imported %d triggers from %s (now %s.imported)", len(found), path, path)
+        return found
 
     def close(self) -> None:
-        self.store.close(2.0)
         for source in self.sources.values():
             self.executor.guarded("closing the trigger sources", source.close)
 
     # ---- commands ----------------------------------------------------------------------------------
-    def _answer_when_saved(self, task: Task, result: dict[str, Any]) -> None:
+    def _when_saved(self, task: Task, result: dict[str, Any]) -> Callable[[], None]:
+        """What the store calls (its thread) once a change is written: ``task`` is answered (on the ROS
+        thread); after ``SAVE_WAIT`` s it is answered anyway (a slow disk: the change holds in memory)."""
         done = [False]
 
         def once() -> None:
@@ -519,7 +489,7 @@ class TriggerRegistry:
                 task.reply(result)
 
         timer = self.executor.call_later(SAVE_WAIT, once)
-        self._save(once)
+        return lambda: self.executor.post(once)
 
     def _get(self, args: dict) -> Trigger:
         trigger = self.triggers.get(args.get("id")) if isinstance(args.get("id"), str) else None
@@ -579,9 +549,13 @@ class TriggerRegistry:
                           created_at_ns=time.time_ns(), client=client, status="active", **strings, **flags)
         if lifetime is not None:
             trigger.deadline = time.monotonic() + lifetime
-        self._add(trigger)
+        size = len(trigger.record())
+        if self.bytes + size > self.max_bytes:
+            raise IpcError("triggers-full", f"The triggers held take {self.bytes} of the {self.max_bytes} bytes "
+                           f"the gateway keeps for them (max_trigger_bytes); this one needs {size}: delete one "
+                           "or retry later", {"max_trigger_bytes": self.max_bytes})
+        self._add(trigger, self._when_saved(task, trigger.wire()))
         self.stats.triggers_created += 1
-        self._answer_when_saved(task, trigger.wire())
 
     def _cmd_list(self, task: Task) -> None:
         args = task.args
@@ -612,12 +586,10 @@ class TriggerRegistry:
         trigger.deadline = time.monotonic() + lifetime
         if trigger.status == "active":
             self._arm(trigger)
-        self._changed(trigger)
-        self._answer_when_saved(task, trigger.wire())
+        self._changed(trigger, self._when_saved(task, trigger.wire()))
 
     def _cmd_delete(self, task: Task) -> None:
-        self._remove(self._get(task.args), "deleted")
-        self._answer_when_saved(task, {})
+        self._remove(self._get(task.args), "deleted", self._when_saved(task, {}))
 
     # ---- firing ------------------------------------------------------------------------------------
     def fire(self, trigger: Trigger, stamp: int, *, payload: bytes | None = None, error: str | None = None) -> None:
@@ -646,10 +618,9 @@ class TriggerRegistry:
         self._timers[trigger.id] = self.executor.call_later(
             TERMINATED_KEEP, lambda: self._remove(trigger, "expired"))
         self._changed(trigger)
-        self._save()
 
     # ---- the set ------------------------------------------------------------------------------------
-    def _add(self, trigger: Trigger) -> None:
+    def _add(self, trigger: Trigger, then: Callable[[], None] | None = None) -> None:
         # Sequence numbers go on from the wall clock, so a stream that stays open across a ROS
         # worker restart does not take the restored trigger's events for ones it already sent.
         trigger.seq = trigger.opened_seq = max(trigger.seq, time.time_ns())
@@ -658,12 +629,19 @@ class TriggerRegistry:
             self.per_client[trigger.client] = self.per_client.get(trigger.client, 0) + 1
         self.sources[trigger.source].attach(trigger)
         self._arm(trigger)
-        self._changed(trigger)
+        self._changed(trigger, then)
 
-    def _changed(self, trigger: Trigger) -> None:
-        self._records[trigger.id] = trigger.record()
-        self.version += 1
+    def _changed(self, trigger: Trigger, then: Callable[[], None] | None = None) -> None:
+        """Its row written again (``then`` once it is); the size of what is held counted again."""
+        record = trigger.record()
+        self.bytes += len(record) - trigger.size
+        trigger.size = len(record)
+        self.store.put_trigger(trigger.id, record, then)
+        self._gauges()
+
+    def _gauges(self) -> None:
         self.stats.active_triggers = sum(1 for t in self.triggers.values() if t.status == "active")
+        self.stats.trigger_bytes = self.bytes
 
     def _arm(self, trigger: Trigger) -> None:
         old = self._timers.pop(trigger.id, None)
@@ -681,11 +659,13 @@ class TriggerRegistry:
             return
         self._remove(trigger, "expired")
 
-    def _remove(self, trigger: Trigger, event: str) -> None:
+    def _remove(self, trigger: Trigger, event: str, then: Callable[[], None] | None = None) -> None:
         if self.triggers.pop(trigger.id, None) is None:
+            if then is not None:
+                then()
             return
-        self._records.pop(trigger.id, None)
-        self.version += 1
+        self.bytes -= trigger.size
+        trigger.size = 0
         if trigger.client:
             held = self.per_client.get(trigger.client, 0) - 1
             if held > 0:
@@ -696,12 +676,9 @@ class TriggerRegistry:
         timer = self._timers.pop(trigger.id, None)
         if timer is not None:
             timer.cancel()
-        self.stats.active_triggers = sum(1 for t in self.triggers.values() if t.status == "active")
+        self.store.put_trigger(trigger.id, None, then)
+        self._gauges()
         self._send([events.trigger_control_key(trigger.id), protocol.pack({"event": event, "id": trigger.id})])
-        self._save()
-
-    def _save(self, then: Callable[[], None] | None = None) -> None:
-        self.store.submit(self.version, list(self._records.values()), then)
 
 
 def _valid_record(fields: dict[str, Any]) -> bool:
@@ -714,13 +691,6 @@ def _valid_record(fields: dict[str, Any]) -> bool:
             and isinstance(fields["created_at_ns"], int)
             and (lifetime is None or (isinstance(lifetime, int) and not isinstance(lifetime, bool)
                                       and 0 < lifetime <= MAX_LIFETIME)))
-
-
-def store_path(setting: str, runtime_dir: str, environ=os.environ) -> str:
-    """``trigger_store``; else ``triggers.json`` in systemd's ``$STATE_DIRECTORY`` (kept across reboots),
-    else in the runtime dir (kept across gateway restarts, not across reboots)."""
-    state_dir = (environ.get("STATE_DIRECTORY") or "").split(":")[0]
-    return setting or os.path.join(state_dir or runtime_dir, FILE_NAME)
 
 
 def events_sender(streams) -> Callable[[list[bytes]], None]:

@@ -15,6 +15,7 @@ and, when one is set, the bearer token (``auth.py``).
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from flask import Blueprint, Response
@@ -63,7 +64,10 @@ def _timeout() -> float:
 
 
 def _call(cmd: str, args: dict[str, Any], nodes: int = 1) -> dict[str, Any]:
-    return rosclient.get().call(cmd, args, _timeout() * (1 if nodes <= 1 else 2))
+    """One command; a multi-node one may take a node's time once per ``max_parameter_clients`` nodes (the
+    ROS worker queues the nodes past the cap behind those in flight), and once more."""
+    waves = math.ceil(nodes / config().max_parameter_clients)
+    return rosclient.get().call(cmd, args, _timeout() * (1 if nodes <= 1 else 1 + waves))
 
 
 def _node_error(error: IpcError, message: str, entity_id: str, param_id: str | None = None) -> ApiError:
@@ -81,8 +85,8 @@ def _ros_call(cmd: str, args: dict[str, Any], message: str, entity_id: str, para
     try:
         return _call(cmd, args)
     except IpcError as exc:
-        if exc.code in ("unavailable", "shutdown", "backpressure", "deadline-exceeded", "bad-request",
-                        "unknown-command", "pool-busy"):
+        if exc.code in ("unavailable", "outcome-unknown", "shutdown", "backpressure", "deadline-exceeded",
+                        "bad-request", "unknown-command", "pool-busy"):
             raise ApiError.from_ipc(exc, {"entity_id": entity_id, "id": param_id}) from None
         if exc.code == "no-such-parameter" and message.startswith("Failed to get"):
             message = "Parameter not found"

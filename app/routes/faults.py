@@ -3,9 +3,12 @@
 The ROS worker keeps the faults (``rosworker/faults.py``, stored in SQLite);
 these routes ask it for them and apply medkit's rules here:
 
-- ``?status=``: ``pending`` (PREFAILED, PREPASSED), ``confirmed``, ``cleared``
-  (CLEARED and HEALED, as SOVD has it), ``healed``, ``all``; without it the
-  active ones (pending and confirmed); anything else is 400 ``invalid-parameter``.
+- ``?status=`` as medkit's transport asks its fault manager
+  (``ros2_fault_service_transport.cpp``, ``parse_fault_status_param``):
+  ``pending`` is PREFAILED, ``confirmed`` CONFIRMED, ``healed`` HEALED and
+  PREPASSED, ``cleared`` CLEARED with what ``healed`` holds (SOVD's "cleared"),
+  ``all`` every status; without it pending and confirmed (PREFAILED,
+  CONFIRMED); anything else is 400 ``invalid-parameter``.
 - Entity scope (medkit's all-sources rule, ``fault_scope.cpp``): a fault belongs
   to an app, component or function when *every* one of its reporting sources is
   one of the entity's nodes (or below one: ``/a/b`` is below ``/a``).  A fault
@@ -35,13 +38,13 @@ bp = Blueprint("faults", __name__, url_prefix=API_BASE)
 ENTITY = "/<collection:collection>/<entity_id>"
 CODE_MAX = 256
 STATUS_FILTERS = {
-    "pending": ("PREFAILED", "PREPASSED"),
+    "pending": ("PREFAILED",),
     "confirmed": ("CONFIRMED",),
-    "cleared": ("CLEARED", "HEALED"),
-    "healed": ("HEALED",),
-    "all": ("PREFAILED", "PREPASSED", "CONFIRMED", "HEALED", "CLEARED"),
+    "cleared": ("CLEARED", "HEALED", "PREPASSED"),
+    "healed": ("HEALED", "PREPASSED"),
+    "all": ("PREFAILED", "CONFIRMED", "CLEARED", "HEALED", "PREPASSED"),
 }
-DEFAULT_STATUSES = ("PREFAILED", "PREPASSED", "CONFIRMED")
+DEFAULT_STATUSES = ("PREFAILED", "CONFIRMED")  # medkit's include_pending and include_confirmed
 OUT_OF_SCOPE = ("Fault is not in scope for this entity: every reporting source must be one of the entity's "
                 "owned apps, and a mixed-source fault that includes any out-of-entity reporter is rejected "
                 "to prevent cross-entity disclosure")

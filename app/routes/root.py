@@ -132,7 +132,8 @@ def health():
 
 
 CONFIGURATION_KEYS = ("parameter_clients", "parameter_client_cap", "parameter_calls_in_flight",
-                      "parameter_calls", "parameter_timeouts", "parameter_events")
+                      "parameter_waiting", "parameter_waits", "parameter_calls", "parameter_resends",
+                      "parameter_timeouts", "parameter_events")
 
 
 def _configurations(stats: dict[str, Any] | None) -> dict[str, Any]:

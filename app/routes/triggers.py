@@ -17,6 +17,7 @@ updates) are refused as not observable on this gateway yet.
 
 from __future__ import annotations
 
+import json
 import math
 import re
 from typing import Any
@@ -40,6 +41,7 @@ bp = Blueprint("triggers", __name__, url_prefix=API_BASE)
 ENTITY = "/<any(apps, components, functions):collection>/<entity_id>"
 CONDITIONS = ("OnChange", "OnChangeTo", "EnterRange", "LeaveRange")
 MAX_LIFETIME = 2**31 - 1
+TARGET_VALUE_MAX = 4096  # bytes of the JSON of an OnChangeTo target_value (rosworker/triggers.py checks it too)
 _TRIGGER_ID = re.compile(r"^trig_[0-9a-f]{16}$")
 _COLLECTION = re.compile(r"^/api/v1/[^/?#]+/[^/?#]+/([^/?#]+)")
 # Collections a trigger may observe here -> the ROS worker's source kind (rosworker/triggers.py SOURCES).
@@ -68,6 +70,11 @@ def _condition(body: dict[str, Any]) -> dict[str, Any]:
     if kind == "OnChangeTo":
         if "target_value" not in condition:
             raise _bad("OnChangeTo requires 'target_value'", "trigger_condition.target_value")
+        size = len(json.dumps(condition["target_value"], separators=(",", ":")).encode())
+        if size > TARGET_VALUE_MAX:
+            raise ApiError(400, "invalid-parameter", f"'target_value' too large (max {TARGET_VALUE_MAX} bytes of "
+                           f"JSON; this one has {size})", {"parameter": "trigger_condition.target_value",
+                                                           "max_bytes": TARGET_VALUE_MAX, "bytes": size})
         out["target_value"] = condition["target_value"]
     elif kind in ("EnterRange", "LeaveRange"):
         for name in ("lower_bound", "upper_bound"):

@@ -1,19 +1,21 @@
 """Routes of medkit's contract that this gateway does not serve: 501 ``not-implemented``.
 
-medkit answers these routes with 501 when the provider behind them is not
-there (no update plugin, locking disabled, no scripts backend, no lifecycle
-provider), and its handlers say so before they look at the entity.  This
-gateway has none of these, so it answers the same way, whatever the entity id:
-a client tells "not served here" (501) from "no such entity or route" (404).
-Bulk data has no "not loaded" case in medkit (its handlers always serve it);
-it is answered 501 here for the same reason.
+medkit answers some of these with 501 when the provider behind them is not
+there (no update plugin, no scripts backend, no lifecycle provider for the
+transitions), and its handlers say so before they look at the entity.  Locks
+are another case: medkit turns locking on by default; this gateway has no
+locks yet (a later issue brings them), so it answers their routes 501 too.
+It answers the same way whatever the entity id: a client tells "not served
+here" (501) from "no such entity or route" (404).  Bulk data has no "not
+loaded" case in medkit (its handlers always serve it); it is answered 501 here
+for the same reason.
 
 :data:`ROUTES` is the one table: the blueprint, the OpenAPI document
 (``app/openapi.py``) and the capabilities of ``GET /api/v1/``
 (``app/routes/root.py``) are all made from it.  Nothing here talks to the ROS
-worker.  Operations, configurations, faults, logs and triggers have routes of their
-own (``app/routes/``); medkit has no
-``modes`` routes, so neither has this table.
+worker.  Operations, configurations, faults, logs, triggers and the lifecycle
+status (``GET .../status``, ``app/routes/status.py``) have routes of their own
+(``app/routes/``); medkit has no ``modes`` routes, so neither has this table.
 """
 
 from __future__ import annotations
@@ -93,7 +95,6 @@ ROUTES: tuple[Route, ...] = (
           "control{Kind}ScriptExecution", "Terminate a script execution"),
     Route("scripts", "DELETE", "/scripts/{script_id}/executions/{execution_id}", _APPS_COMPONENTS,
           "remove{Kind}ScriptExecution", "Remove a finished script execution"),
-    Route("lifecycle", "GET", "/status", _APPS_COMPONENTS, "get{Kind}Status", "Lifecycle status"),
     *(Route("lifecycle", "PUT", f"/status/{t}", _APPS_COMPONENTS,
             "put{Kind}Status" + t.title().replace("-", ""), f"Request the lifecycle transition '{t}'")
       for t in _TRANSITIONS),

@@ -60,8 +60,9 @@ def test_app_detail(client):
     assert d["faults"] == "/api/v1/apps/temp_sensor/faults"
     assert d["logs"] == "/api/v1/apps/temp_sensor/logs"
     assert d["triggers"] == "/api/v1/apps/temp_sensor/triggers"
-    assert [c["name"] for c in d["capabilities"]] == ["data", "operations", "configurations", "faults", "logs",
-                                                      "triggers", "is-located-on", "belongs-to"]
+    assert d["status"] == "/api/v1/apps/temp_sensor/status"  # medkit's, first
+    assert [c["name"] for c in d["capabilities"]] == ["status", "data", "operations", "configurations", "faults",
+                                                      "logs", "triggers", "is-located-on", "belongs-to"]
     assert {"name": "is-located-on", "href": "/api/v1/apps/temp_sensor/is-located-on"} in d["capabilities"]
     assert d["_links"] == {"self": "/api/v1/apps/temp_sensor", "collection": "/api/v1/apps",
                            "is-located-on": "/api/v1/components/test-robot",
@@ -77,8 +78,9 @@ def test_component_and_function_details(client):
     assert c["subcomponents"] == "/api/v1/components/test-robot/subcomponents"
     assert c["operations"] == "/api/v1/components/test-robot/operations"
     assert c["triggers"] == "/api/v1/components/test-robot/triggers"
-    assert [cap["name"] for cap in c["capabilities"]] == ["data", "operations", "configurations", "faults", "logs",
-                                                          "subcomponents", "hosts", "triggers"]
+    assert c["status"] == "/api/v1/components/test-robot/status"
+    assert [cap["name"] for cap in c["capabilities"]] == ["status", "data", "operations", "configurations",
+                                                          "faults", "logs", "subcomponents", "hosts", "triggers"]
     assert c["x-medkit"]["capabilities"] == c["capabilities"]
     f = client.get("/api/v1/functions/powertrain").get_json()
     assert f["type"] == "function" and f["hosts"] == "/api/v1/functions/powertrain/hosts"

@@ -72,7 +72,9 @@ def test_app_detail():
     assert "depends-on" not in d  # medkit links it only when there are dependencies
     for name in ("operations", "configurations", "faults", "logs", "triggers"):
         assert d[name] == f"/api/v1/apps/temp_sensor/{name}"
+    assert d["status"] == "/api/v1/apps/temp_sensor/status"
     assert d["capabilities"] == [
+        {"name": "status", "href": "/api/v1/apps/temp_sensor/status"},
         {"name": "data", "href": "/api/v1/apps/temp_sensor/data"},
         {"name": "operations", "href": "/api/v1/apps/temp_sensor/operations"},
         {"name": "configurations", "href": "/api/v1/apps/temp_sensor/configurations"},
@@ -96,8 +98,9 @@ def test_component_function_and_area_details():
     assert "depends-on" not in c and "belongs-to" not in c
     for name in ("operations", "configurations", "faults", "logs", "triggers"):
         assert c[name] == f"{base}/{name}"
-    caps = [{"name": n, "href": f"{base}/{n}"} for n in ("data", "operations", "configurations", "faults", "logs",
-                                                         "subcomponents", "hosts", "triggers")]
+    assert c["status"] == base + "/status"
+    caps = [{"name": n, "href": f"{base}/{n}"} for n in ("status", "data", "operations", "configurations", "faults",
+                                                         "logs", "subcomponents", "hosts", "triggers")]
     assert c["capabilities"] == caps and c["x-medkit"] == {"source": "runtime", "capabilities": caps}
     assert c["_links"] == {"self": base, "collection": "/api/v1/components"}
     f = idx.get("functions", "powertrain").detail()

@@ -5,8 +5,10 @@ from __future__ import annotations
 import os
 import signal
 import sqlite3
+import stat
 import tempfile
 import threading
+import time
 
 import pytest
 import requests
@@ -14,6 +16,7 @@ import requests
 from bench.diagpub import DiagPub
 from tests.support.gateway import Gateway
 from tests.support.procs import poll_until
+from tests.support.sse import sse_events
 
 FAST = ("--fault-confirm-count", "1", "--fault-heal-count", "1", "--fault-stale-s", "0")
 
@@ -180,4 +183,80 @@ def test_clearing_is_off_by_default(state_dir, diag):
             assert "--allow-fault-clear" in r.json()["parameters"]["details"]
         assert faults(gw)["NOCLEAR"]["status"] == "CONFIRMED"
     finally:
+        gw.stop()
+
+
+def test_the_store_s_files_are_the_service_user_s_alone(tmp_path):
+    """faults.db, its -wal and -shm are 0600 and a state dir the gateway makes is 0700, whatever the umask;
+    a file left 0644 by an older gateway is narrowed."""
+    state_dir = tmp_path / "made-by-the-gateway"
+    old_umask = os.umask(0o022)  # the gateway inherits it (make run, a shell): files would be 0644
+    try:
+        gw = Gateway("--state-dir", str(state_dir))
+    finally:
+        os.umask(old_umask)
+    try:
+        poll_until(lambda: all(os.path.exists(state_dir / f"faults.db{s}") for s in ("", "-wal", "-shm")), 10,
+                   message="the store's files")
+        assert stat.S_IMODE(os.stat(state_dir).st_mode) == 0o700
+        for suffix in ("", "-wal", "-shm"):
+            assert stat.S_IMODE(os.stat(state_dir / f"faults.db{suffix}").st_mode) == 0o600, suffix
+    finally:
+        gw.stop()
+    for suffix in ("", "-wal", "-shm"):  # as an older gateway left them
+        if os.path.exists(state_dir / f"faults.db{suffix}"):
+            os.chmod(state_dir / f"faults.db{suffix}", 0o644)
+    os.chmod(state_dir, 0o755)
+    gw = Gateway("--state-dir", str(state_dir))
+    try:
+        for suffix in ("", "-wal", "-shm"):
+            assert stat.S_IMODE(os.stat(state_dir / f"faults.db{suffix}").st_mode) == 0o600, suffix
+        assert stat.S_IMODE(os.stat(state_dir).st_mode) == 0o755  # not made by the gateway: left as it is
+    finally:
+        gw.stop()
+
+
+def _until(events, code: str, timeout: float = 40.0) -> dict:
+    deadline = time.monotonic() + timeout
+    for event in events:
+        if event is not None and event["data"]["fault"]["fault_code"] == code:
+            return event
+        if time.monotonic() > deadline:
+            break
+    raise AssertionError(f"no event of {code} within {timeout} s")
+
+
+def test_a_restarted_ros_worker_s_fault_events_reach_an_open_stream_and_a_reconnect_with_no_store(tmp_path, diag):
+    """A store in memory only (an unwritable state dir): the event ids of a new ROS worker must still be
+    above the old one's, or an open stream and a Last-Event-ID reconnect drop them as sent already."""
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    gw = Gateway(*FAST, "--state-dir", str(blocker / "state"))
+    pub = diag("epoch_driver", rate=5)
+    try:
+        assert gw.get("/health").json()["x-medkit-faults"]["store_enabled"] is False
+        with requests.get(f"{gw.api}/faults/stream", stream=True, timeout=30) as stream:
+            events = sse_events(stream)
+            # six events before the restart; then silence, so that the new worker hears only what follows
+            pub.set([{"name": f"epoch_driver: before {i}", "level": 2, "message": "x"} for i in range(6)])
+            seen = {}
+            while len(seen) < 6:
+                event = next(events)
+                if event is not None:
+                    seen[event["data"]["fault"]["fault_code"]] = event
+            before = max(seen.values(), key=lambda e: e["id"])
+            pub.set([], publish=False)
+            old_pid = gw.rosworker_pid()
+            os.kill(old_pid, signal.SIGKILL)
+            poll_until(lambda: gw.rosworker_pid() != old_pid and gw.get("/health").json()[
+                "x-medkit-subscription-executor"]["worker_alive"], 30, message="the ROS worker restarted")
+            pub.set([{"name": "epoch_driver: after", "level": 2, "message": "y"}])
+            after = _until(events, "EPOCH_DRIVER_AFTER")  # the open stream gets it
+        assert after["id"] > before["id"]
+        with requests.get(f"{gw.api}/faults/stream", stream=True, timeout=30,
+                          headers={"Last-Event-ID": str(before["id"])}) as again:
+            replayed = _until(sse_events(again), "EPOCH_DRIVER_AFTER")  # a reconnect from before the restart too
+        assert replayed["id"] == after["id"]
+    finally:
+        pub.stop()
         gw.stop()

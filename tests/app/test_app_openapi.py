@@ -89,6 +89,15 @@ def test_schemas_are_valid_json_schema(doc):
     assert doc["openapi"] == "3.1.0"
 
 
+def test_every_tag_an_operation_uses_is_declared(doc):
+    """An OpenAPI tag an operation names is declared once in the top-level ``tags`` (generators group by it)."""
+    declared = [t["name"] for t in doc["tags"]]
+    used = {tag for path in doc["paths"].values() for op in path.values() for tag in op["tags"]}
+    assert len(declared) == len(set(declared))
+    assert used <= set(declared), sorted(used - set(declared))
+    assert "Configuration" in used
+
+
 def test_names_generated_clients_see_are_medkits(doc):
     """The names medkit's published spec gives, which generated clients import."""
     assert doc["info"]["x-sovd-version"] == "1.0.0"
@@ -368,6 +377,16 @@ def test_every_route_answers_per_the_document(doc):
                 r = client.open(path, method=method, **kw)
                 check(doc, method, path, r)
                 seen.setdefault(operation(doc, method, path)[0], set()).add(r.status_code)
+        # GET .../status: ready (a plain node, the host component), notReady (a managed node not active), 404
+        fw.replies = {**getattr(fw, "replies", {}), "lifecycle_state": {"managed": True, "state": "inactive"}}
+        for path, answer in (("/api/v1/components/test-robot/status", "ready"),
+                             ("/api/v1/apps/temp_sensor/status", "notReady"),
+                             ("/api/v1/apps/nope/status", None), ("/api/v1/components/nope/status", None)):
+            r = client.get(path)
+            assert (r.status_code, r.get_json().get("status")) == ((200, answer) if answer else (404, None)), path
+            check(doc, "GET", path, r)
+            seen.setdefault(operation(doc, "GET", path)[0], set()).add(r.status_code)
+        del fw.replies["lifecycle_state"]
         fw.errors["param_get"] = IpcError("node-unavailable", "did not respond", {"retry_after_s": 3})
         r = client.get("/api/v1/apps/temp_sensor/configurations/rate")
         assert r.status_code == 503 and r.headers["Retry-After"] == "3"

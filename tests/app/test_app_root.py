@@ -170,6 +170,7 @@ def test_entity_docs_fill_in_the_entity(client):
         # medkit's routes not served here (501), in the order of unimplemented.ROUTES
         *dict.fromkeys(path.replace("{component_id}", "test-robot")
                        for _, path, collection in unimplemented.paths() if collection == "components"),
+        "/components/test-robot/status",  # GET .../status (its transitions are in the table above: 501)
         "/components/test-robot/logs", "/components/test-robot/logs/configuration",  # logs (issue 22)
         # operations: services and actions
         "/components/test-robot/operations", "/components/test-robot/operations/{operation_id}",

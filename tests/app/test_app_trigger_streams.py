@@ -17,6 +17,7 @@ import json
 import os
 import shutil
 import signal
+import sqlite3
 import tempfile
 import time
 
@@ -292,10 +293,34 @@ def listed(gw: Gateway, base: str) -> list[dict]:
     return answer.json()["items"]
 
 
-def test_triggers_survive_a_ros_worker_sigkill_and_persistent_ones_a_gateway_restart():
+@pytest.fixture
+def dirs():
+    """A runtime dir and a state dir kept across the gateways of one test (the triggers' rows live in the
+    state dir's store)."""
     runtime_dir = tempfile.mkdtemp(prefix="sovd-trig-")
+    state_dir = tempfile.mkdtemp(prefix="sovd-trig-state-")
     os.chmod(runtime_dir, 0o700)
-    gw = Gateway("--workers", "2", "--log-level", "warning", runtime_dir=runtime_dir)
+    yield runtime_dir, state_dir
+    shutil.rmtree(runtime_dir, ignore_errors=True)
+    shutil.rmtree(state_dir, ignore_errors=True)
+
+
+def gateway_on(dirs, workers: str = "1") -> Gateway:
+    runtime_dir, state_dir = dirs
+    return Gateway("--workers", workers, "--log-level", "warning", "--state-dir", state_dir,
+                   runtime_dir=runtime_dir)
+
+
+def stored_ids(state_dir: str) -> set[str]:
+    db = sqlite3.connect(f"file:{os.path.join(state_dir, 'faults.db')}?mode=ro", uri=True)
+    try:
+        return {row[0] for row in db.execute("SELECT id FROM triggers")}
+    finally:
+        db.close()
+
+
+def test_triggers_survive_a_ros_worker_sigkill_and_persistent_ones_a_gateway_restart(dirs):
+    gw = gateway_on(dirs, "2")
     topic = None
     try:
         topic = Topic(gw)
@@ -303,6 +328,7 @@ def test_triggers_survive_a_ros_worker_sigkill_and_persistent_ones_a_gateway_res
         kept = requests.post(gw.api + topic.base, json={**body, "persistent": True, "lifetime": 600}, timeout=10).json()
         lost = requests.post(gw.api + topic.base, json=body, timeout=10).json()
         assert kept["persistent"] is True and lost["persistent"] is False
+        assert stored_ids(dirs[1]) == {kept["id"], lost["id"]}  # one row each, written before the 201
         old = gw.rosworker_pid()
         os.kill(old, signal.SIGKILL)
         poll_until(lambda: gw.rosworker_pid() != old and gw.get("/health").json()[
@@ -314,23 +340,21 @@ def test_triggers_survive_a_ros_worker_sigkill_and_persistent_ones_a_gateway_res
             # may go before the new one has matched: send changing values until one is delivered.
             assert first_event(topic, stream, [4.0, 4.5, 4.25])["payload"]["data"] in (4.0, 4.5, 4.25)
         gw.stop()
-        gw = Gateway("--workers", "2", "--log-level", "warning", runtime_dir=runtime_dir)
+        gw = gateway_on(dirs, "2")
         items = listed(gw, topic.base)
         assert [t["id"] for t in items] == [kept["id"]]  # a new gateway: the persistent one only
         assert items[0]["lifetime"] == 600 and items[0]["trigger_condition"] == {"condition_type": "OnChange"}
+        poll_until(lambda: stored_ids(dirs[1]) == {kept["id"]}, 10, message="the other's row deleted")
         with EventStream(gw.port, kept["event_source"]) as stream:
             assert first_event(topic, stream, [5.0, 5.5, 5.25])["payload"]["data"] in (5.0, 5.5, 5.25)
     finally:
         gw.stop()
         if topic is not None:
             topic.close()
-        shutil.rmtree(runtime_dir, ignore_errors=True)
 
 
-def test_a_persistent_trigger_is_restored_before_its_topic_exists():
-    runtime_dir = tempfile.mkdtemp(prefix="sovd-trig-")
-    os.chmod(runtime_dir, 0o700)
-    gw = Gateway("--workers", "1", "--log-level", "warning", runtime_dir=runtime_dir)
+def test_a_persistent_trigger_is_restored_before_its_topic_exists(dirs):
+    gw = gateway_on(dirs)
     topic = None
     try:
         topic = Topic(gw)
@@ -340,7 +364,7 @@ def test_a_persistent_trigger_is_restored_before_its_topic_exists():
             "multishot": True, "persistent": True}, timeout=10).json()
         gw.stop()
         topic.close()  # the publisher is gone while the gateway starts
-        gw = Gateway("--workers", "1", "--log-level", "warning", runtime_dir=runtime_dir)
+        gw = gateway_on(dirs)
         client = gw.rosworker_client()
         try:
             trig = client.call("trig_get", {"collection": "apps", "entity_id": topic.app, "id": kept["id"]}, 5)
@@ -358,12 +382,10 @@ def test_a_persistent_trigger_is_restored_before_its_topic_exists():
         gw.stop()
         if topic is not None:
             topic.close()
-        shutil.rmtree(runtime_dir, ignore_errors=True)
 
 
-def test_a_damaged_store_restores_only_the_sound_persistent_triggers():
-    runtime_dir = tempfile.mkdtemp(prefix="sovd-trig-")
-    os.chmod(runtime_dir, 0o700)
+def test_a_damaged_store_restores_only_the_sound_persistent_triggers_and_imports_an_old_triggers_json(dirs):
+    runtime_dir, state_dir = dirs
     good = {"id": "trig_00000000000000aa", "collection": "apps", "entity_id": "someone", "resource": "/r",
             "source": "data", "target": "/trig_store/value", "bytes": "array", "path": "/data",
             "condition": {"condition_type": "OnChange"}, "multishot": True, "persistent": True, "lifetime": None,
@@ -375,21 +397,35 @@ def test_a_damaged_store_restores_only_the_sound_persistent_triggers():
            {**good, "id": "trig_00000000000000b5", "expires_at_ns": 5},
            {**good, "id": "trig_00000000000000b6", "source": "faults"},
            {**good, "id": "trig_00000000000000b7", "multishot": "yes"},
-           {k: v for k, v in good.items() if k != "target"}, "junk", 7]
+           {**good, "id": "trig_00000000000000b8",
+            "condition": {"condition_type": "OnChangeTo", "target_value": "x" * 5000}},  # past the limit
+           {k: v for k, v in good.items() if k != "target"} | {"id": "trig_00000000000000b9"}]
+    db = sqlite3.connect(os.path.join(state_dir, "faults.db"))
+    db.execute("CREATE TABLE triggers (id TEXT PRIMARY KEY, doc TEXT NOT NULL)")
+    rows = [(t["id"], json.dumps(t)) for t in [*bad, good]]
+    db.executemany("INSERT INTO triggers VALUES (?, ?)", [*rows, ("trig_00000000000000ba", "junk{"),
+                                                           ("trig_00000000000000bb", "7")])
+    db.commit()
+    db.close()
+    old = {**good, "id": "trig_00000000000000cc", "path": ""}  # an older gateway's file: imported once
     with open(os.path.join(runtime_dir, "triggers.json"), "w") as fh:
-        json.dump({"triggers": [*bad, good]}, fh)
-    gw = Gateway("--workers", "1", "--log-level", "warning", runtime_dir=runtime_dir)
+        json.dump({"triggers": [old, {**old, "id": "trig_00000000000000cd", "persistent": False}, "junk"]}, fh)
+    gw = gateway_on(dirs)
     try:
         client = gw.rosworker_client()
         try:
             items = client.call("trig_list", {"collection": "apps", "entity_id": "someone"}, 5)["items"]
         finally:
             client.close()
-        assert [t["id"] for t in items] == [good["id"]]
+        assert sorted(t["id"] for t in items) == [good["id"], old["id"]]
         assert gw.get("/health").json()["x-medkit-subscription-executor"]["worker_alive"]
+        poll_until(lambda: stored_ids(state_dir) == {good["id"], old["id"]}, 10,
+                   message="the unsound rows deleted, the imported one written")
+        assert not os.path.exists(os.path.join(runtime_dir, "triggers.json"))
+        assert os.path.exists(os.path.join(runtime_dir, "triggers.json.imported"))
     finally:
         gw.stop()
-        shutil.rmtree(runtime_dir, ignore_errors=True)
+
 
 def test_a_1khz_topic_with_50_triggers_costs_one_take_per_message_and_counts_what_a_slow_reader_drops():
     app, rate = "trig_fast", 1000

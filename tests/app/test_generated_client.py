@@ -127,6 +127,8 @@ def test_relations(sdk, client):
     assert "temp_sensor" in [a.id for a in hosts.items] and hosts.x_medkit.total_count == len(hosts.items)
     located = call(sdk, client, "discovery", "get_app_host", "ComponentList", app_id="temp_sensor")
     assert [c.id for c in located.items] == [HOST_ID]
+    (host,) = located.items  # medkit's test_hateoas: the host has id, name and href
+    assert host.name and host.href == f"/api/v1/components/{HOST_ID}" and host.type_ == "component"
     assert located.field_links["app"] == "/api/v1/apps/temp_sensor"  # `_links`, as the generator names it
     func_hosts = call(sdk, client, "discovery", "list_function_hosts", "AppList", function_id="powertrain")
     assert [a.id for a in func_hosts.items] == ["temp_sensor"]

@@ -199,3 +199,46 @@ def test_in_a_gevent_process_calls_are_green_pooled_and_never_block_the_loop():
     finally:
         proc.stop()
         worker.stop()
+
+
+@pytest.mark.parametrize("cmd", sorted(protocol.WRITES) + ["graph", "sample"])
+def test_a_write_that_reached_a_worker_which_then_died_is_outcome_unknown_a_read_unavailable(tmp_path, cmd):
+    """A bare ROUTER stands in for the ROS worker: it takes the request, then goes away unanswered.
+    A write may have been carried out (504, no retry advice); a read is safe to retry (503)."""
+    import zmq
+
+    from ipc.server import bind_router
+
+    zctx = zmq.Context()
+    router = bind_router(zctx, str(tmp_path), protocol.SOCKET_NAME)
+    received = threading.Event()
+
+    def worker():
+        if router.poll(10_000):
+            router.recv_multipart()
+            received.set()
+        router.close(linger=0)  # dies with the request
+
+    thread = threading.Thread(target=worker)
+    thread.start()
+    client = RosWorkerClient.for_runtime_dir(str(tmp_path))
+    try:
+        with pytest.raises(IpcError) as info:
+            client.call(cmd, {}, timeout=15, connect_wait=5)
+        assert received.is_set()
+        answer = ApiError.from_ipc(info.value)
+        if cmd in protocol.WRITES:
+            assert info.value.code == "outcome-unknown", info.value
+            assert answer.status == 504 and answer.error_code == "not-responding" and answer.retry_after is None
+        else:
+            assert info.value.code == "unavailable", info.value
+            assert answer.status == 503 and answer.retry_after
+    finally:
+        client.close()
+        thread.join(15)
+        zctx.term()
+
+
+def test_every_write_command_is_a_command_of_the_protocol():
+    assert protocol.WRITES <= set(protocol.COMMANDS)
+    assert not protocol.WRITES & {"graph", "sample", "stats", "ping", "fault_list", "param_list", "logs"}

@@ -243,6 +243,8 @@ class FakeWorker:
             return {"severity_filter": args.get("severity_filter", "debug"), "max_entries": args.get("max_entries", 100)}
         if cmd.startswith("trig_"):  # triggers
             return self._trigger(cmd, args)
+        if cmd == "lifecycle_state":  # GET .../status: a plain node (a test may put another answer in replies)
+            return {"managed": False, "state": None}
         return IpcError("unknown-command", f"unknown command {cmd!r}")
 
 

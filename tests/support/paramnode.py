@@ -9,7 +9,9 @@ Run as ``python -m tests.support.paramnode '<json spec>'``::
      "refuse": {"mode": ["auto"]},     # values a set callback refuses ("<value> is locked")
      "declare_on": {"trigger": "arm", "name": "late", "value": 3},  # set arm true: late is declared
      "hang": false,                    # true: never runs a callback (its services never answer)
-     "services": true}                 # false: no parameter services at all
+     "services": true,                 # false: no parameter services at all
+     "count": 1}                       # n > 1: n nodes <node>_0 ... <node>_<n-1> in this one process,
+                                       # each with "params" (and a parameter "index": its number)
 
 A value ``{"__bytes__": [1, 2]}`` is a byte array.  Prints ``READY`` once the node
 exists; SIGTERM destroys it so that it leaves the graph at once.
@@ -52,8 +54,27 @@ def _descriptor(item: dict):
     return d
 
 
+def serve_many(spec: dict) -> None:
+    """``count`` nodes with parameters in one process (one rclpy context, one executor)."""
+    from rclpy.node import Node
+
+    first, stop = rosmain.start(f"{spec['node']}_0", namespace=spec.get("namespace", "/"))
+    nodes = [first] + [Node(f"{spec['node']}_{i}", namespace=spec.get("namespace", "/"))
+                       for i in range(1, int(spec["count"]))]
+    for i, node in enumerate(nodes):
+        node.declare_parameter("index", i)
+        for item in spec.get("params", []):
+            node.declare_parameter(item["name"], _value(item["value"]), _descriptor(item))
+    print("READY", flush=True)
+    rosmain.spin(first, stop, nodes[1:])
+
+
 def serve(spec: dict) -> None:
     from rclpy.parameter import Parameter
+
+    if int(spec.get("count", 1)) > 1:
+        serve_many(spec)
+        return
 
     options = {"namespace": spec.get("namespace", "/"),
                "start_parameter_services": spec.get("services", True)}

@@ -97,14 +97,15 @@ def free_port() -> int:
 
 
 class Proc:
-    """A child process whose stdout lines are collected by a reader thread.
+    """A child process whose stdout lines are collected by a reader thread (``stdin``: a pipe to
+    write commands to, ``proc.stdin``, text).
 
     With ``log_path`` its output goes to that file instead (no reader thread;
     :meth:`wait_line` is then not available, :meth:`tail` reads the file).
     """
 
     def __init__(self, argv: list[str], env: dict | None = None, name: str = "proc",
-                 log_path: str | None = None):
+                 log_path: str | None = None, stdin: bool = False):
         self.name = name
         self.lines: queue.Queue[str] = queue.Queue()
         self.output: list[str] = []
@@ -113,7 +114,7 @@ class Proc:
         self.proc = subprocess.Popen(
             argv, stdout=self._log or subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
             env={**os.environ, **(env or {})}, cwd=REPO, start_new_session=True,
-            stdin=subprocess.DEVNULL if log_path else None,
+            stdin=subprocess.PIPE if stdin else subprocess.DEVNULL if log_path else None,
         )
         self._reader = None
         if self._log is None:

@@ -10,6 +10,8 @@ Run as ``python -m tests.support.rosops '<json spec>'``::
 
 Services answer at once: a ``Trigger`` with ``success: true`` and ``message: "called <n>"``,
 any other type echoes every request field that the response has (``BasicTypes``, ``Arrays``).
+A service with ``"delay": s`` prints ``CALLING <n>`` when a call starts, works ``s`` seconds, and
+prints ``CALLED <n>`` when it has carried the call out (a slow calibration).
 The Fibonacci action server computes ``order`` numbers, one every ``step`` seconds, with
 feedback after each; ``order < 0`` is rejected, ``order == 13`` aborts after its first step,
 and every cancel request is accepted (the goal ends ``canceled`` at its next step).  With
@@ -46,13 +48,18 @@ def main() -> None:
     group = ReentrantCallbackGroup()
     calls = {"n": 0}
 
-    def serve(srv_type):
+    def serve(srv_type, delay: float = 0.0):
         def callback(request, response):
             calls["n"] += 1
+            n = calls["n"]
+            if delay:
+                print(f"CALLING {n}", flush=True)
+                time.sleep(delay)
+                print(f"CALLED {n}", flush=True)
             fields = response.get_fields_and_field_types()
             if "success" in fields and "message" in fields and not request.get_fields_and_field_types():
                 response.success = True
-                response.message = f"called {calls['n']}"
+                response.message = f"called {n}"
                 return response
             for name in fields:
                 if hasattr(request, name):
@@ -63,7 +70,8 @@ def main() -> None:
     keep = []
     for item in spec.get("services", []):
         cls = _load(item["type"])
-        keep.append(node.create_service(cls, item["name"], serve(cls), callback_group=group))
+        keep.append(node.create_service(cls, item["name"], serve(cls, float(item.get("delay", 0))),
+                                        callback_group=group))
 
     for item in spec.get("actions", []):
         cls = _load(item["type"])

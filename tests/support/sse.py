@@ -16,6 +16,7 @@ import json
 import socket
 import sys
 import time
+from collections.abc import Iterator
 from typing import Any
 
 
@@ -185,3 +186,20 @@ class EventStream:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
+
+
+def sse_events(response) -> Iterator[dict[str, Any] | None]:
+    """The events of a ``requests`` response streamed with ``stream=True`` (``/faults/stream``):
+    ``{"id": int, "event", "data"}`` each as it comes, and None for a comment (a keep-alive: the reader
+    can look at its clock)."""
+    current: dict[str, Any] = {}
+    for line in response.iter_lines():
+        line = line.decode() if isinstance(line, bytes) else line
+        if not line:
+            yield current if "data" in current else None
+            current = {}
+        elif not line.startswith(":"):
+            key, _, value = line.partition(":")
+            value = value.strip()
+            current[key] = json.loads(value) if key == "data" else int(value) if key == "id" else value
+

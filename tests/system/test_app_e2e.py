@@ -122,8 +122,8 @@ def test_entities_follow_the_ros_graph(gw):
     detail = gw.get("/apps/temp_sensor").json()
     assert detail["x-medkit"]["ros2"]["node"] == "/powertrain/engine/temp_sensor"
     assert detail["is-located-on"] == f"/api/v1/components/{HOST_ID}"
-    assert [c["name"] for c in detail["capabilities"]] == ["data", "operations", "configurations", "faults", "logs",
-                                                           "triggers", "is-located-on", "belongs-to"]
+    assert [c["name"] for c in detail["capabilities"]] == ["status", "data", "operations", "configurations",
+                                                           "faults", "logs", "triggers", "is-located-on", "belongs-to"]
     located = gw.get("/apps/temp_sensor/is-located-on").json()
     assert located["items"][0]["id"] == HOST_ID
 

@@ -10,6 +10,7 @@ import concurrent.futures
 import json
 import signal
 import sys
+import threading
 
 import pytest
 import requests
@@ -295,6 +296,40 @@ def test_operations_are_off_by_default(arm):
         assert r.status_code == 403 and r.json()["error_code"] == "forbidden"
     finally:
         gateway.stop()
+
+
+SLOW_SPEC = {"node": "slowcal", "namespace": "/slow",
+             "services": [{"name": "calibrate", "type": "std_srvs/srv/Trigger", "delay": 4.0}]}
+
+
+def test_a_call_cut_off_by_a_ros_worker_crash_is_504_outcome_unknown_not_retry():
+    """The review's case: a 4 s service, the ROS worker SIGKILLed while it runs.  The service finishes,
+    so the answer must not be 503 "retry shortly" (a client that obeys calibrates twice): it is 504
+    not-responding, no Retry-After, the outcome unknown."""
+    node = OpsNode(SLOW_SPEC)
+    gw = None
+    try:
+        gw = Gateway("--allow-operations", "--service-call-timeout", "10", "--workers", "1")
+        path = "/apps/slowcal/operations/calibrate/executions"
+        poll_until(lambda: gw.get("/apps/slowcal/operations").status_code == 200, 20, message="slowcal operations")
+        answers: list[requests.Response] = []
+        caller = threading.Thread(target=lambda: answers.append(
+            requests.post(gw.api + path, json={"parameters": {}}, timeout=30)))
+        caller.start()
+        node.wait_line(lambda line: line == "CALLING 1", 15)  # the request reached the server through the worker
+        gw.rosworker().send_signal(signal.SIGKILL)
+        caller.join(30)
+        (r,) = answers
+        assert r.status_code == 504, r.text
+        assert "Retry-After" not in r.headers
+        body = r.json()
+        assert body["error_code"] == "not-responding" and "vendor_code" not in body
+        assert "may or may not have been carried out" in body["message"]
+        node.wait_line(lambda line: line == "CALLED 1", 15)  # and it was carried out
+    finally:
+        if gw is not None:
+            gw.stop()
+        node.stop()
 
 
 def test_goal_survives_nothing_of_a_killed_ros_worker_but_reads_failed(gw):

@@ -89,6 +89,9 @@ def test_user_runtime_dir_and_environment(unit):
     assert one(unit, "User") == "sovd" and one(unit, "Group") == "sovd"
     assert one(unit, "RuntimeDirectory") == "sovd-gateway"
     assert one(unit, "RuntimeDirectoryMode") == "0700"
+    # the store (faults.db: faults with their freeze frames, triggers) is the service user's alone
+    assert one(unit, "StateDirectory") == "sovd-gateway" and one(unit, "StateDirectoryMode") == "0700"
+    assert one(unit, "UMask") == "0077"
     assert one(unit, "EnvironmentFile") == "-/etc/default/sovd-gateway"
     # How to create the user is written down in the file.
     assert "useradd --system" in UNIT.read_text()
