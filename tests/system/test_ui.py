@@ -214,6 +214,12 @@ def test_a_live_value_changes_on_screen_and_its_fields_plot(gw, page, tmp_path):
     # The health panel updates itself and counts this page's stream, in words.
     expect(tab.locator("#health li[data-key='streams']")).to_have_text(re.compile(r"^[1-9]\d* live streams?, "))
 
+    # The faults and logs of the whole robot beside it (the panels follow the item's app until asked).
+    expect(tab.locator("#faults-scope .scope-name")).to_have_text("pressure_sensor")
+    tab.locator("#faults-scope button").click()
+    expect(tab.locator("#logs-scope .scope-name")).to_have_text("whole robot")
+    expect(tab.locator("#faults .fault").first).to_be_visible(timeout=45_000)   # the demo's battery or wheel
+    expect(tab.locator("#logs-body .log-line[data-node='chassis.odometry']").first).to_be_attached()
     shot = os.environ.get("SOVD_UI_SCREENSHOT") or str(tmp_path / "dashboard.png")
     tab.screenshot(path=shot)
     with open(shot, "rb") as fh:
