@@ -81,12 +81,15 @@ class LeftFaults:
         if codes and not self.warned:
             self.warned = True
             more = f" and {len(nodes) - NODES_SHOWN} more" if len(nodes) > NODES_SHOWN else ""
+            one = len(codes) == 1
             log.warning(
-                "faults: %d active fault%s loaded from %s %s reported by node%s that %s not on the ROS graph "
-                "%.0f s after the start (%s%s): kept from an earlier run, another robot's, or their nodes "
-                "died; nobody reports them, so they go stale (CRITICAL) and stay active. Clear them "
-                "(DELETE /api/v1/faults, with --allow-fault-clear), or give this gateway a state directory of "
-                "its own (--state-dir). /health shows them as x-medkit-faults.left_by_absent_nodes.",
-                len(codes), "" if len(codes) == 1 else "s", self.manager.store.path,
-                "was" if len(codes) == 1 else "were", "" if len(nodes) == 1 else "s",
-                "is" if len(nodes) == 1 else "are", self.check_after, ", ".join(nodes[:NODES_SHOWN]), more)
+                "faults: %d active fault%s loaded from %s %s reported by %s not on the ROS graph %.0f s "
+                "after the start (%s%s): left by an earlier run or another robot, or %s died. Nobody reports "
+                "%s, so %s stale (CRITICAL) and %s active. Clear %s (DELETE /api/v1/faults, with "
+                "--allow-fault-clear), or give this gateway a state directory of its own (--state-dir). "
+                "/health shows %s as x-medkit-faults.left_by_absent_nodes.",
+                len(codes), "" if one else "s", self.manager.store.path, "was" if one else "were",
+                "a node that is" if len(nodes) == 1 else "nodes that are", self.check_after,
+                ", ".join(nodes[:NODES_SHOWN]), more, "its node" if len(nodes) == 1 else "their nodes",
+                "it" if one else "them", "it goes" if one else "they go", "stays" if one else "stay",
+                "it" if one else "them", "it" if one else "them")
