@@ -36,10 +36,14 @@ def test_faults_of_absent_nodes_are_told_until_their_node_is_back(state_dir):
     back = None
     try:
         failing = [{"name": "ghost_driver: motor", "level": 2, "message": "hot"}]
-        ghost.set(failing)
-        here.set([{"name": "here_driver: motor", "level": 2, "message": "hot"}])
         gw = Gateway(*FAST, "--fault-stale-s", "0", "--state-dir", state_dir)
         try:
+            # The nodes known first, so that each status is put on its own node (one that comes before
+            # its node is known may be put on another /diagnostics publisher).
+            for app in ("ghost_driver", "here_driver"):
+                poll_until(lambda a=app: gw.get(f"/apps/{a}").status_code == 200, 30, message=f"the app {app}")
+            ghost.set(failing)
+            here.set([{"name": "here_driver: motor", "level": 2, "message": "hot"}])
             poll_until(lambda: sources(gw) == {"GHOST_DRIVER_MOTOR": ["/ghost_driver"],
                                                "HERE_DRIVER_MOTOR": ["/here_driver"]}, 30,
                        message="both faults confirmed, each from its node")
@@ -61,6 +65,7 @@ def test_faults_of_absent_nodes_are_told_until_their_node_is_back(state_dir):
             assert "--state-dir" in line and "--allow-fault-clear" in line
             # The node is back and reports again: the fault is this robot's again.
             back = DiagPub("ghost_driver", rate=5)
+            poll_until(lambda: gw.get("/apps/ghost_driver").status_code == 200, 30, message="the node back")
             back.set(failing)
             poll_until(lambda: section(gw)["left_by_absent_nodes"] == 0, 30, message="the node back")
             assert section(gw)["absent_nodes"] == []
