@@ -4,6 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 BIND   ?= 127.0.0.1:8080
+ARGS   ?=
 
 .PHONY: install run test lint bench reliability screenshot clean
 
@@ -16,8 +17,10 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
+# The demo robot and a gateway; ARGS go to the gateway (make run ARGS="--allow-fault-clear --log-level debug").
+# The demo keeps its state, sockets and logs in demo/var/ (see demo/run.py); its banner says where.
 run: $(STAMP)
-	$(BIN)/python -m demo.run --bind $(BIND)
+	$(BIN)/python -m demo.run --bind $(BIND) $(ARGS)
 
 # Four test sessions side by side (each in a ROS domain of its own, a test module stays in one):
 # most of the suite's time is waiting on processes (gateways booting, DDS discovery), not using

@@ -926,7 +926,11 @@ SCHEMAS["HealthStatus"]["properties"]["x-medkit-faults"] = {
            active_by_severity={"type": "object", "additionalProperties": INT},
            store_enabled={"type": "boolean"}, store_writes=INT, store_write_errors=INT, store_pending=INT,
            last_write_error=STR, moved_aside={**STR, "description": "where a corrupt store was moved at start"},
-           diagnostics_arrays=INT),
+           diagnostics_arrays=INT,
+           left_by_absent_nodes={**INT, "description": "active faults loaded from the store at start whose "
+                                 "reporting nodes are not on the graph (an earlier run's, another robot's, or "
+                                 "their nodes died): nobody reports them again"},
+           absent_nodes={**STR_LIST, "description": "the reporting nodes of those faults (at most 16)"}),
     "description": "the fault manager (rosworker/faults.py) and its SQLite store; zeros before the ROS worker "
                    "first answers"}
 _FAULT_QUERY = {"name": "status", "in": "query", "required": False,

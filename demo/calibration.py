@@ -2,8 +2,9 @@
 
     /arm/calibration  ⇄ /arm/calibrate         (std_srvs/srv/Trigger: answers at once)
                       ⇄ /arm/long_calibration  (test_msgs/action/Fibonacci: one step of `order` every
-                                                0.5 s, feedback after each, cancellable; order < 0 is
-                                                rejected, order > 100 is aborted after its first step)
+                                                second, feedback after each, cancellable; order < 0 is
+                                                rejected, order > 46 (past int32) is aborted after its
+                                                first step)
 
 The node runs in the demo robot's single-threaded executor beside the sensors, so the action's
 steps wait on timers (an ``async`` execute callback), never on ``sleep``.
@@ -17,8 +18,8 @@ from rclpy.task import Future
 from std_srvs.srv import Trigger
 from test_msgs.action import Fibonacci
 
-STEP_S = 0.5
-MAX_ORDER = 100
+STEP_S = 1.0
+MAX_ORDER = 46   # fib(47) does not fit the int32 of Fibonacci's sequence
 
 
 def build() -> Node:

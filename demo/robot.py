@@ -10,9 +10,19 @@ newcomer can read live data at once::
                                       → /body/lights/state   (std_msgs/msg/String, latched)
     /diagnostics_agent                → /diagnostics                     (diagnostic_msgs/msg/DiagnosticArray, 1 Hz)
     /perception/camera                → /perception/camera/image_raw     (sensor_msgs/msg/Image, 64x48 rgb8, 5 Hz)
-    /power/battery_monitor            → /power/battery                   (sensor_msgs/msg/BatteryState, 2 Hz)
+    /power/battery_monitor            → /power/battery                   (sensor_msgs/msg/BatteryState, 2 Hz:
+                                                                          demo/battery.py)
     /arm/calibration                  ⇄ /arm/calibrate, /arm/long_calibration (a service and an action:
                                         demo/calibration.py)
+
+What happens over time, counted from the start (the README's examples wait for these):
+
+- the engine warms and cools between 72 and 88 °C every ``ENGINE_PERIOD`` s: it passes 80 °C on
+  the way up once a cycle (the README's LeaveRange trigger), and logs a warning above 86 °C;
+- the rear left wheel slips for ``SLIP_FOR`` s every ``SLIP_PERIOD`` s, first ``SLIP_AFTER`` s after
+  the start: the odometry logs an error every second and reports ``odometry: Wheel slip`` at
+  ERROR on /diagnostics (the fault ``ODOMETRY_WHEEL_SLIP`` of the app ``odometry``), OK otherwise;
+- the battery is low soon after the start, and again every few minutes (demo/battery.py).
 
 The battery does not measure its temperature, current or charge: as BatteryState says, those
 are NaN (which JSON cannot carry; see the README on non-finite floats).
@@ -39,29 +49,56 @@ from std_msgs.msg import Bool, String
 CAMERA_WIDTH, CAMERA_HEIGHT = 64, 48
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+ENGINE_PERIOD = 30.0   # seconds of one warm-up and cool-down of the engine
+ENGINE_HOT = 86.0      # °C above which the engine logs a warning
+SLIP_PERIOD, SLIP_FOR, SLIP_AFTER = 30.0, 6.0, 5.0   # seconds: the wheel slips for 6 s of every 30 s
 
 
-def _periodic(node: Node, topic: str, cls, hz: float, fill) -> None:
+def engine_temperature(t: float) -> float:
+    """°C, ``t`` seconds after the start: 82 and rising at first, 72 … 88 (warnings within seconds)."""
+    return 80.0 + 8.0 * math.sin(2 * math.pi * t / ENGINE_PERIOD + math.asin(0.25))
+
+
+def slipping(t: float) -> bool:
+    return t >= SLIP_AFTER and (t - SLIP_AFTER) % SLIP_PERIOD < SLIP_FOR
+
+
+def _periodic(node: Node, topic: str, cls, hz: float, fill, start: float) -> None:
     pub = node.create_publisher(cls, topic, 10)
 
     def tick():
         msg = cls()
-        fill(msg, time.monotonic())
+        fill(msg, time.monotonic() - start)
         pub.publish(msg)
 
     node.create_timer(1.0 / hz, tick)
 
 
-def build() -> list[Node]:
+def _every(node: Node, seconds: float, fn, start: float) -> None:
+    """``fn(t)`` every ``seconds``, ``t`` counted from the start."""
+    node.create_timer(seconds, lambda: fn(time.monotonic() - start))
+
+
+def _diagnostics(node: Node, status_at, start: float) -> None:
+    """Publish ``status_at(t)`` on /diagnostics from ``node`` once a second."""
+    def fill(msg, t):
+        msg.header.stamp = node.get_clock().now().to_msg()
+        msg.status = [status_at(t)]
+
+    _periodic(node, "/diagnostics", DiagnosticArray, 1, fill, start)
+
+
+def build(start: float | None = None) -> list[Node]:
+    start = time.monotonic() if start is None else start
     engine = Node("temp_sensor", namespace="/powertrain/engine")
 
     def temperature(msg, t):
         msg.header.stamp = engine.get_clock().now().to_msg()
         msg.header.frame_id = "engine"
-        msg.temperature = 90.0 + 5.0 * math.sin(t / 10.0)
+        msg.temperature = engine_temperature(t)
         msg.variance = 0.5
 
-    _periodic(engine, "temperature", Temperature, 10, temperature)
+    _periodic(engine, "temperature", Temperature, 10, temperature, start)
     # configurations: the engine's parameters; publish_rate changes the rate above (demo/tuning.py)
     from demo.tuning import tune
     tune(engine)
@@ -74,7 +111,7 @@ def build() -> list[Node]:
         msg.fluid_pressure = 2.0e6 + 1.0e5 * math.sin(t)
         msg.variance = 10.0
 
-    _periodic(brakes, "pressure", FluidPressure, 20, pressure)
+    _periodic(brakes, "pressure", FluidPressure, 20, pressure, start)
 
     odometry = Node("odometry", namespace="/chassis")
 
@@ -86,7 +123,13 @@ def build() -> list[Node]:
         msg.pose.pose.position.y = 10.0 * math.sin(t / 20.0)
         msg.twist.twist.linear.x = 0.5
 
-    _periodic(odometry, "odom", Odometry, 10, odom)
+    _periodic(odometry, "odom", Odometry, 10, odom, start)
+    # faults: the wheel slip on /diagnostics, named for the node as diagnostic_updater names statuses
+    _diagnostics(odometry, lambda t: DiagnosticStatus(
+        level=DiagnosticStatus.ERROR if slipping(t) else DiagnosticStatus.OK, name="odometry: Wheel slip",
+        message="rear left wheel slipping" if slipping(t) else "ok", hardware_id="wheel-rl",
+        values=[KeyValue(key="wheel", value="rear left"),
+                KeyValue(key="slip_ratio", value=f"{0.35 if slipping(t) else 0.02:.2f}")]), start)
 
     lights = Node("controller", namespace="/body/lights")
     state_pub = lights.create_publisher(String, "state", LATCHED)
@@ -95,14 +138,9 @@ def build() -> list[Node]:
         Bool, "command", lambda msg: state_pub.publish(String(data="on" if msg.data else "off")), 10)
 
     diag = Node("diagnostics_agent")
-
-    def diagnostics(msg, t):
-        msg.header.stamp = diag.get_clock().now().to_msg()
-        msg.status = [DiagnosticStatus(level=DiagnosticStatus.OK, name="engine", message="running",
-                                       hardware_id="ecu-1",
-                                       values=[KeyValue(key="rpm", value=str(int(800 + 50 * math.sin(t))))])]
-
-    _periodic(diag, "/diagnostics", DiagnosticArray, 1, diagnostics)
+    _diagnostics(diag, lambda t: DiagnosticStatus(
+        level=DiagnosticStatus.OK, name="engine", message="running", hardware_id="ecu-1",
+        values=[KeyValue(key="rpm", value=str(int(800 + 50 * math.sin(t))))]), start)
 
     camera = Node("camera", namespace="/perception")
     frames = [0]
@@ -114,63 +152,48 @@ def build() -> list[Node]:
         msg.data = test_pattern(frames[0])
         frames[0] += 1
 
-    _periodic(camera, "camera/image_raw", Image, 5, image)
+    _periodic(camera, "camera/image_raw", Image, 5, image, start)
+
+    # The battery: one charge for its BatteryState, its log lines and its /diagnostics (demo/battery.py)
+    from demo import battery as pack
 
     battery = Node("battery_monitor", namespace="/power")
 
     def battery_state(msg, t):
         msg.header.stamp = battery.get_clock().now().to_msg()
-        msg.voltage = 25.2 - 0.5 * (1.0 + math.sin(t / 30.0))
-        msg.percentage = 0.8 + 0.1 * math.sin(t / 30.0)
-        msg.temperature = msg.current = msg.charge = msg.capacity = math.nan   # not measured
-        msg.design_capacity = 20.0
-        msg.power_supply_status = BatteryState.POWER_SUPPLY_STATUS_DISCHARGING
-        msg.present = True
+        pack.fill(msg, t)
 
-    _periodic(battery, "battery", BatteryState, 2, battery_state)
-    # faults: the battery warns on /diagnostics while its charge is low (demo/battery.py)
-    from demo.battery import add_diagnostics
-
-    add_diagnostics(battery)
-    _log_lines(engine, brakes, odometry, battery)  # logs (issue 22): /rosout at several levels
+    _periodic(battery, "battery", BatteryState, 2, battery_state, start)
+    _diagnostics(battery, pack.status, start)
+    _every(battery, 3.0, lambda t: pack.log_line(battery.get_logger(), t), start)
+    _log_lines(engine, brakes, odometry, start)  # logs (issue 22): /rosout at several levels
     return [engine, brakes, odometry, lights, diag, camera, battery]
 
 
 # logs (issue 22): what the demo's nodes write to /rosout (GET /apps/{id}/logs, the Logs panel).
-def _log_lines(engine: Node, brakes: Node, odometry: Node, battery: Node) -> None:
-    """Lines at every level but fatal: debug, info, warning when a value leaves its band, an error now and then."""
+def _log_lines(engine: Node, brakes: Node, odometry: Node, start: float) -> None:
+    """Lines at every level but fatal: debug, info, a warning when the engine runs hot, an error while
+    the wheel slips."""
     from rclpy.logging import LoggingSeverity
 
     brakes.get_logger().set_level(LoggingSeverity.DEBUG)
-    start = time.monotonic()
 
-    def engine_line():
-        temperature = 90.0 + 5.0 * math.sin(time.monotonic() / 10.0)
-        if temperature > 94.0:
+    def engine_line(t):
+        temperature = engine_temperature(t)
+        if temperature > ENGINE_HOT:
             engine.get_logger().warning(f"engine temperature high: {temperature:.1f} °C")
         else:
             engine.get_logger().info(f"engine temperature {temperature:.1f} °C")
 
-    def brakes_line():
-        brakes.get_logger().debug("brake pressure sampled")
-
-    def odometry_line():
-        if int(time.monotonic() - start) % 30 < 10:  # the first line (at 5 s) is one
+    def odometry_line(t):
+        if slipping(t):
             odometry.get_logger().error("wheel slip detected on the rear left wheel")
-        else:
+        elif int(t) % 5 == 0:
             odometry.get_logger().info("odometry ok")
 
-    def battery_line():
-        percentage = 0.8 + 0.1 * math.sin(time.monotonic() / 30.0)
-        if percentage < 0.72:
-            battery.get_logger().warning(f"battery low: {percentage:.0%}")
-        else:
-            battery.get_logger().info(f"battery at {percentage:.0%}")
-
-    engine.create_timer(2.0, engine_line)
-    brakes.create_timer(1.0, brakes_line)
-    odometry.create_timer(5.0, odometry_line)
-    battery.create_timer(3.0, battery_line)
+    _every(engine, 2.0, engine_line, start)
+    _every(brakes, 1.0, lambda t: brakes.get_logger().debug("brake pressure sampled"), start)
+    _every(odometry, 1.0, odometry_line, start)
 
 
 def test_pattern(frame: int) -> bytes:

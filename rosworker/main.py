@@ -240,6 +240,9 @@ class Worker:
                               snapshot_topics=cfg.fault_snapshot_topics)
         faults.load()
         faults.start()
+        # faults left in the store by nodes that are not on the graph: said in the log and /health
+        from .leftfaults import LeftFaults, check_delay
+        LeftFaults(faults, graph, stats, executor, check_after=check_delay(cfg.fault_stale_s)).start()
         commands.handlers.update(fault_handlers(faults))
         # What the executor's loop runs: the queued commands, and a look at each topic that
         # callers wait on (its first message) on every round.

@@ -41,8 +41,11 @@ def _spec_schema(spec: _Spec, mode: str) -> dict[str, Any]:
     if kind in ("int", "octet", "char"):
         lo, hi = (spec.lo, spec.hi) if kind == "int" else (0, 255 if kind == "octet" else 127)
         return {"type": "integer", "minimum": lo, "maximum": hi, "x-ros-type": spec.label}
-    if kind == "float":  # NaN and +-inf are strings (see encode.py's docstring)
-        return {"anyOf": [{"type": "number"}, {"type": "string", "enum": list(NON_FINITE)}],
+    if kind == "float":
+        # A number, as medkit's own schema says: "type" is what medkit's web UI (and other form
+        # builders) read to draw a number field; a list of types there breaks its form builder.
+        # NaN and +-inf are the strings of the anyOf (see encode.py's docstring and the README).
+        return {"type": "number", "anyOf": [{"type": "number"}, {"type": "string", "enum": list(NON_FINITE)}],
                 "x-ros-type": spec.label}
     if kind == "bool":
         return {"type": "boolean", "x-ros-type": spec.label}

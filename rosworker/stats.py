@@ -46,6 +46,7 @@ class Stats:
         self.phase_changes = 0  # tick phase per topic: times a topic's ticks were phased to its arrivals
         self.current_task_started = 0.0  # monotonic; 0 while idle
         self.faults: dict = {}  # faults: /health's x-medkit-faults, replaced whole (rosworker/faults.py)
+        self.faults_left: dict = {}  # ... and its faults left by absent nodes (rosworker/leftfaults.py)
 
     def task_started(self) -> float:
         now = time.monotonic()
@@ -110,5 +111,5 @@ class Stats:
                 else:
                     part[key] = getattr(self, key)
         if self.faults:  # faults (rosworker/faults.py): a dict replaced whole, never changed in place
-            answer["faults"] = self.faults
+            answer["faults"] = {**self.faults, **self.faults_left}
         return answer

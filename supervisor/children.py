@@ -16,6 +16,7 @@ import signal
 import socket
 import subprocess
 import sys
+from typing import IO
 
 from common import pdeathsig
 
@@ -27,8 +28,10 @@ class Child:
     the child's program must call ``pdeathsig.arm()`` first thing.
     """
 
-    def __init__(self, name: str, argv: list[str], env: dict[str, str], death_signal: int):
+    def __init__(self, name: str, argv: list[str], env: dict[str, str], death_signal: int,
+                 output: IO[str] | None = None):
         self.name = name
+        self.output = output  # where its stdout and stderr go (None: the supervisor's own)
         self.argv = argv
         self.env = env
         self.death_signal = death_signal
@@ -36,7 +39,8 @@ class Child:
 
     def start(self) -> None:
         env = {**self.env, **pdeathsig.child_env(self.death_signal)}
-        self.proc = subprocess.Popen(self.argv, env=env, stdin=subprocess.DEVNULL, process_group=0)
+        self.proc = subprocess.Popen(self.argv, env=env, stdin=subprocess.DEVNULL, process_group=0,
+                                     stdout=self.output, stderr=subprocess.STDOUT if self.output else None)
 
     @property
     def pid(self) -> int:

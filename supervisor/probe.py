@@ -152,6 +152,22 @@ def _human(cmd: str, r: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; a reader that goes away (``sovd-probe graph | head``) ends it quietly."""
+    try:
+        code = _run(argv)
+        sys.stdout.flush()  # here, not at exit: a closed pipe is then caught below
+        return code
+    except BrokenPipeError:
+        # The output was read as far as the reader wanted (a ``watch`` deletes its subscription
+        # on the way out).  Nothing more is written: stdout goes to /dev/null, so Python's own
+        # flush at exit does not print a traceback either.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+        return EXIT_OK
+
+
+def _run(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)  # exits 2 on usage errors
     if not (0 < args.timeout <= 600):
         print("sovd-probe: --timeout must be between 0 and 600 seconds", file=sys.stderr)

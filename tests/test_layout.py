@@ -152,3 +152,23 @@ def test_every_test_module_lives_in_the_folder_of_what_it_tests():
                  and p.relative_to(REPO / "tests").parts[0] not in TEST_FOLDERS]
     assert not misplaced, f"test modules outside tests/{{{','.join(sorted(TEST_FOLDERS))}}}/: {misplaced}"
     assert TEST_FOLDERS - {"system", "reliability"} <= {p.name for p in REPO.iterdir() if (p / "__init__.py").exists()}
+
+
+def test_every_dashboard_file_is_declared_package_data():
+    """pyproject.toml: each folder of app/ui is a package of its own with its files as package data
+    (setuptools warns "Package would be ignored" otherwise), and the licence is an SPDX string."""
+    import fnmatch
+    import tomllib
+
+    project = tomllib.loads((REPO / "pyproject.toml").read_text())
+    assert isinstance(project["project"]["license"], str)
+    tool = project["tool"]["setuptools"]
+    undeclared = []
+    for path in (REPO / "app" / "ui").rglob("*"):
+        if path.is_dir() or "__pycache__" in path.parts:
+            continue
+        package = ".".join(path.parent.relative_to(REPO).parts)
+        patterns = tool["package-data"].get(package, [])
+        if package not in tool["packages"] or not any(fnmatch.fnmatch(path.name, p) for p in patterns):
+            undeclared.append(str(path.relative_to(REPO)))
+    assert not undeclared, f"dashboard files not declared as package data in pyproject.toml: {undeclared}"

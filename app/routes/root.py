@@ -41,6 +41,7 @@ def root():
             "operations": True, "async_actions": True, "operation_execution": bool(cfg.allow_operations),
             "configurations": True,  # ROS 2 parameters (app/routes/configurations.py)
             "faults": True,  # /diagnostics (app/routes/faults.py)
+            "fault_clear": bool(cfg.allow_fault_clear),  # DELETE …/faults (the dashboard's Clear)
             "logs": True,  # /rosout (app/routes/logs.py)
             "triggers": True,  # condition triggers (app/routes/triggers.py)
             # ui (issue 21): the dashboard's Parameters panel shows its editor when configurations may be changed
@@ -168,14 +169,14 @@ def _sections(stats: dict[str, Any] | None) -> tuple[dict[str, Any], dict[str, A
 # ---- faults (rosworker/faults.py): /health's x-medkit-faults ------------------------------------------
 FAULT_HEALTH_KEYS = ("active", "confirmed", "store_size", "max_faults", "refused", "active_by_severity",
                      "store_enabled", "store_writes", "store_write_errors", "store_pending", "last_write_error",
-                     "moved_aside", "diagnostics_arrays")
+                     "moved_aside", "diagnostics_arrays", "left_by_absent_nodes", "absent_nodes")
 
 
 def faults_health(stats: dict[str, Any] | None) -> dict[str, Any]:
     """The fault manager's counters as the ROS worker last sent them (zeros before its first answer)."""
     part = stats.get("faults") if isinstance(stats, dict) else None
     section: dict[str, Any] = {"active": 0, "confirmed": 0, "store_size": 0, "max_faults": config().max_faults,
-                               "last_write_error": ""}
+                               "last_write_error": "", "left_by_absent_nodes": 0, "absent_nodes": []}
     if isinstance(part, dict):
         section.update({k: part[k] for k in FAULT_HEALTH_KEYS if k in part})
     return section

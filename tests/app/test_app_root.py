@@ -63,6 +63,13 @@ def test_root_reflects_allow_configurations(fw):
     assert body["capabilities"]["configuration_writes"] is True
 
 
+def test_root_reflects_allow_fault_clear(fw):
+    """The dashboard offers Clear on a fault only when the gateway would clear it."""
+    assert make_app(fw).test_client().get("/api/v1/").get_json()["capabilities"]["fault_clear"] is False
+    body = make_app(fw, allow_fault_clear=True).test_client().get("/api/v1/").get_json()
+    assert body["capabilities"]["fault_clear"] is True
+
+
 def test_version_info(client):
     body = client.get("/api/v1/version-info").get_json()
     (item,) = body["items"]

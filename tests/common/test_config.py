@@ -132,3 +132,16 @@ def test_fleet_settings_refuse_bad_values_naming_the_source(argv, env, needle):
     with pytest.raises(config.ConfigError) as info:
         load(argv, env)
     assert needle in str(info.value)
+
+
+def test_every_setting_is_in_the_settings_reference():
+    """docs/settings.md has one row per setting: its flag, its variable, its default."""
+    from tests.support.procs import REPO
+
+    rows = {line.split("|")[1].strip(" `"): line for line in (REPO / "docs" / "settings.md").read_text().splitlines()
+            if line.startswith("| `--")}
+    for s in config.SETTINGS:
+        assert s.flag in rows, f"{s.flag} is not in docs/settings.md"
+        cells = [c.strip() for c in rows[s.flag].split("|")]
+        assert cells[2] == f"`{s.env}`", (s.flag, cells)
+    assert len(rows) == len(config.SETTINGS), set(rows) - {s.flag for s in config.SETTINGS}

@@ -223,3 +223,24 @@ def test_watch_prints_frames_from_the_events_channel_and_cleans_up(worker, level
 def test_watch_of_a_bad_topic_exits_1(worker):
     r = probe("--runtime-dir", worker.runtime_dir, "watch", "1bad")
     assert r.returncode == 1 and "invalid-topic" in r.stderr
+
+
+def test_a_reader_that_stops_early_gets_no_traceback(worker, level_pub):
+    """``sovd-probe graph | head -1``: the probe's later lines meet a closed pipe; it ends quietly, and a
+    ``watch`` piped into ``head`` stops at the next frame and deletes its subscription."""
+    client = RosWorkerClient.for_runtime_dir(worker.runtime_dir)
+    try:
+        poll_until(lambda: client.call("sample", {"topic": TOPIC, "timeout_ms": 2000}, timeout=5)["status"]
+                   == "data", 30, message="the topic pooled with data")
+        probe_bin = str(BIN / "sovd-probe")
+        for command in (f"{probe_bin} --runtime-dir {worker.runtime_dir} stats | head -n 1",
+                        f"{probe_bin} --runtime-dir {worker.runtime_dir} watch {TOPIC} --interval fast | head -n 2"):
+            # A shell pipeline, as an operator types it; the probe's own exit status is asked for.
+            r = subprocess.run(["bash", "-c", command + "; echo \"probe=${PIPESTATUS[0]}\""], capture_output=True,
+                               text=True, timeout=60, cwd=REPO)
+            assert "Traceback" not in r.stderr and "BrokenPipe" not in r.stderr, r.stderr
+            assert r.stdout.strip().endswith("probe=0"), (command, r.stdout, r.stderr)
+            assert len(r.stdout.strip().splitlines()) == int(command.rsplit(" ", 1)[1]) + 1, r.stdout
+        assert client.call("sub_list", {"collection": "apps", "entity_id": "sovd-probe"})["items"] == []
+    finally:
+        client.close()

@@ -1,12 +1,13 @@
-"""``make run``'s launcher (demo/run.py): live demo data, and Ctrl-C stops everything in order."""
+"""``make run``'s launcher (demo/run.py): live demo data, its own dirs and a banner that says where
+everything is, the robot's lines in a file, and Ctrl-C stops everything in order."""
 
 from __future__ import annotations
 
 import os
 import signal
 import subprocess
-import sys
 import tempfile
+from pathlib import Path
 
 import psutil
 import requests
@@ -16,12 +17,12 @@ from tests.support.procs import REPO, free_port, poll_until
 
 def test_demo_serves_live_data_and_ctrl_c_stops_everything_in_order():
     port = free_port()
-    runtime_dir = tempfile.mkdtemp(prefix="sovd-demo-")
+    var = Path(tempfile.mkdtemp(prefix="sovd-demo-"))
     api = f"http://127.0.0.1:{port}/api/v1"
     # A session of its own, so that the test can do what a terminal does on Ctrl-C:
-    # SIGINT to the whole foreground process group.
-    proc = subprocess.Popen([sys.executable, "-m", "demo.run", "--bind", f"127.0.0.1:{port}",
-                             "--runtime-dir", runtime_dir],
+    # SIGINT to the whole foreground process group.  `make run` with ARGS, as an operator starts it.
+    proc = subprocess.Popen(["make", "-s", "-o", ".venv/.installed", "run", f"BIND=127.0.0.1:{port}",
+                             f"ARGS=--var {var} --allow-fault-clear"],
                             cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             start_new_session=True)
     descendants: list[psutil.Process] = []
@@ -33,6 +34,11 @@ def test_demo_serves_live_data_and_ctrl_c_stops_everything_in_order():
 
         body = poll_until(live, 60, interval=0.2, message="live demo data")
         assert isinstance(body["data"]["temperature"], float)
+        # ARGS reached the gateway; it keeps its faults in the demo's own state dir.
+        assert requests.get(api + "/", timeout=5).json()["capabilities"]["fault_clear"] is True
+        assert (var / "state" / "faults.db").exists() and (var / "run").is_dir()
+        poll_until(lambda: "brake pressure sampled" in (var / "robot.log").read_text(), 30,
+                   message="the robot's ROS log lines in its log file")
         descendants = psutil.Process(proc.pid).children(recursive=True)
         names = " ".join(" ".join(p.cmdline()) for p in descendants)
         assert "demo.robot" in names and "sovd-rosworker" in names and "gunicorn" in names
@@ -42,7 +48,16 @@ def test_demo_serves_live_data_and_ctrl_c_stops_everything_in_order():
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.communicate(timeout=10)
-    assert proc.returncode == 0, out[-3000:]
+    # make passes the SIGINT on after its recipe ended (as in a terminal: "make: *** [run] Interrupt");
+    # the launcher's own exit code is checked in test_demo_logs.py, which starts it without make.
+    assert proc.returncode == -signal.SIGINT, out[-3000:]
+    banner = out[out.index("sovd-gateway demo is running"):]
+    for line in (f"dashboard    http://127.0.0.1:{port}/", f"health       http://127.0.0.1:{port}/api/v1/health",
+                 f"state dir    {var}/state", f"runtime dir  {var}/run",
+                 f"--runtime-dir {var}/run ping", f"robot log    {var}/robot.log"):
+        assert line in banner, banner
+    # The robot's ROS log lines went to its file, not to the terminal.
+    assert "brake pressure sampled" not in out and "[chassis.brakes.pressure_sensor]" not in out, out[-3000:]
     assert "stopped (exit code 0)" in out, out[-3000:]
     assert "second stop signal" not in out and "SIGKILL" not in out, out[-3000:]
     for p in descendants:

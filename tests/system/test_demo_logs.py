@@ -1,4 +1,5 @@
-"""``make run``'s demo robot writes /rosout at several levels, and the gateway serves it as logs (issue 22)."""
+"""``make run``'s demo robot writes /rosout at several levels, and the gateway serves it as logs (issue 22);
+Ctrl-C ends the launcher with exit code 0."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ def test_the_demo_robots_logs_come_at_several_levels():
     port = free_port()
     api = f"http://127.0.0.1:{port}/api/v1"
     proc = subprocess.Popen([sys.executable, "-m", "demo.run", "--bind", f"127.0.0.1:{port}",
-                             "--runtime-dir", tempfile.mkdtemp(prefix="sovd-demo-")],
+                             "--var", tempfile.mkdtemp(prefix="sovd-demo-")],
                             cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             start_new_session=True)
     try:
@@ -35,7 +36,9 @@ def test_the_demo_robots_logs_come_at_several_levels():
     finally:
         os.killpg(proc.pid, signal.SIGINT)
         try:
-            proc.communicate(timeout=30)
+            out, _ = proc.communicate(timeout=30)
         except subprocess.TimeoutExpired:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.communicate(timeout=10)
+            raise
+    assert proc.returncode == 0, out[-3000:]   # the launcher's own exit on Ctrl-C

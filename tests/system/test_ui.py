@@ -144,11 +144,18 @@ def test_the_tree_lists_the_demo_and_filters_by_topic_or_node(gw, page):
         expect(tab.locator(f"a.topic[data-app='{app}'][data-topic='{topic}']").first).to_be_attached()
     # The tree follows the API's links: functions → apps as well.
     expect(tab.locator(".tree details[data-key='f:perception:camera']")).to_be_attached()
-    # /rosout and /parameter_events (every node has them) only when asked for.
-    expect(tab.locator("a.topic[data-topic='/rosout']")).to_have_count(0)
+    # Hidden topics (an action's _action/ topics), /rosout and /parameter_events only when asked for,
+    # as `ros2 topic list` shows them.
+    feedback = "/arm/long_calibration/_action/feedback"
+    expect(tab.locator(".tree .app[data-app='calibration']").first).to_be_attached()
+    for topic in ("/rosout", feedback):
+        expect(tab.locator(f"a.topic[data-topic='{topic}']")).to_have_count(0)
     tab.check("#show-system")
-    expect(tab.locator("a.topic[data-topic='/rosout']").first).to_be_attached()
+    for topic in ("/rosout", feedback):
+        expect(tab.locator(f"a.topic[data-topic='{topic}']").first).to_be_attached()
     tab.uncheck("#show-system")
+    tab.fill("#search", "_action/feedback")           # a filter that names a hidden topic shows it
+    expect(tab.locator(f"a.topic[data-topic='{feedback}']").first).to_be_attached()
 
     tab.fill("#search", "image_raw")                   # a topic name
     expect(tab.locator("a.topic[data-topic='/perception/camera/image_raw']").first).to_be_visible()
@@ -204,9 +211,15 @@ def test_a_live_value_changes_on_screen_and_its_fields_plot(gw, page, tmp_path):
     }""")
     assert drawn > 100, drawn
     expect(tab.locator("#item .legend")).to_contain_text("fluid_pressure")
-    # The health panel updates itself and counts this page's stream.
-    expect(tab.locator("#health tr[data-key='streams'] td")).to_have_text(re.compile(r"^[1-9]"))
+    # The health panel updates itself and counts this page's stream, in words.
+    expect(tab.locator("#health li[data-key='streams']")).to_have_text(re.compile(r"^[1-9]\d* live streams?, "))
 
+    # The faults and logs of the whole robot beside it (the panels follow the item's app until asked).
+    expect(tab.locator("#faults-scope .scope-name")).to_have_text("pressure_sensor")
+    tab.locator("#faults-scope button").click()
+    expect(tab.locator("#logs-scope .scope-name")).to_have_text("whole robot")
+    expect(tab.locator("#faults .fault").first).to_be_visible(timeout=45_000)   # the demo's battery or wheel
+    expect(tab.locator("#logs-body .log-line[data-node='chassis.odometry']").first).to_be_attached()
     shot = os.environ.get("SOVD_UI_SCREENSHOT") or str(tmp_path / "dashboard.png")
     tab.screenshot(path=shot)
     with open(shot, "rb") as fh:
@@ -411,9 +424,19 @@ def test_the_health_panel_shows_evictions_by_cause(gw, page):
     assert manual >= 1 and provider["evictions_total"] >= manual
     tab, _ = page
     tab.goto(gw.url + "/ui/")
-    expect(tab.locator("#health ul.evictions li[data-cause='manual'] b")).to_have_text(str(manual))
-    expect(tab.locator("#health tr[data-key='pool'] td")).to_have_text(re.compile(r"^\d+ / 256$"))
-    expect(tab.locator("#health tr[data-key='cold'] td")).to_have_text(re.compile(r"^\d+ / 4$"))
+    # In words: why topics were let go, how many are read, whether anybody waits ...
+    expect(tab.locator("#health li[data-key='dropped']")).to_contain_text(f"{manual} on request (sovd-probe evict)")
+    expect(tab.locator("#health li[data-key='topics']")).to_have_text(re.compile(r"^Reading \d+ topics? \(up to 256\)"))
+    expect(tab.locator("#health li[data-key='waiting']")).to_have_text(re.compile(r"waiting for a topic's first message"))
+    # ... and the gateway's own counters one click away.
+    raw = tab.locator("#health details.raw-counters")
+    expect(raw.locator("table[data-section='x-medkit-data-provider']")).to_be_hidden()
+    raw.locator("summary").click()
+    provider = raw.locator("table[data-section='x-medkit-data-provider']")
+    expect(provider.locator("tr[data-key='evictions.manual'] td")).to_have_text(str(manual))
+    expect(provider.locator("tr[data-key='pool_cap'] td")).to_have_text("256")
+    expect(provider.locator("tr[data-key='cold_wait_cap'] td")).to_have_text("4")
+    expect(raw).to_have_attribute("open", "")       # it stays open across the next polls
 
 
 def _prefixed_site(upstream_port: int, listen_port: int) -> str:
@@ -459,19 +482,46 @@ def test_the_dashboard_works_under_a_path_prefix_behind_nginx(gw, page, tmp_path
         shutil.rmtree(nginx.prefix, ignore_errors=True)
 
 
-# logs (issue 22): the Logs panel's live tail of the demo robot's /rosout, and its severity filter
-def test_the_logs_panel_tails_the_robots_lines_without_reloading_and_filters_by_severity(gw, page):
+# The Logs panel's live tail of the demo robot's /rosout: severity, node and search filters, one time format,
+# and the lines of the entity the page looks at.
+def test_the_logs_panel_tails_the_robots_lines_and_filters_them(gw, page):
     tab, _ = page
     tab.goto(gw.url + "/ui/")
+    expect(tab.locator("#logs-scope .scope-name")).to_have_text("whole robot")
     lines = tab.locator("#logs-body .log-line")
     expect(lines.first).to_be_visible()
     seen = lines.count()
     poll_until(lambda: lines.count() > seen, 20, message="new log lines on screen without a reload")
     assert tab.locator("#logs-body .log-line[data-severity='debug']").count() > 0  # the brakes' debug lines
+    expect(lines.first.locator(".log-time")).to_have_text(re.compile(r"^\d\d:\d\d:\d\d\.\d{3}$"))  # 24-hour, local
+    # A node: only its lines are shown (the others are hidden, not asked again).
+    expect(tab.locator("#logs-node option[value='chassis.brakes.pressure_sensor']")).to_be_attached()
+    tab.select_option("#logs-node", "chassis.brakes.pressure_sensor")
+    visible = tab.locator("#logs-body .log-line:visible")
+    expect(visible.first).to_be_visible()
+    assert set(visible.evaluate_all("els => els.map(e => e.dataset.node)")) == {"chassis.brakes.pressure_sensor"}
+    tab.select_option("#logs-node", "")
+    # Words of the message.
+    tab.fill("#logs-search", "wheel slip")
+    expect(visible.first).to_contain_text("wheel slip", timeout=45_000)   # the demo's wheel slips every 30 s
+    assert all("wheel slip" in t for t in visible.all_text_contents())
+    tab.fill("#logs-search", "")
     tab.select_option("#logs-severity", "error")
     expect(tab.locator("#logs-body .log-line[data-severity='error']").first).to_contain_text("wheel slip")
     for severity in ("debug", "info", "warning"):
         expect(tab.locator(f"#logs-body .log-line[data-severity='{severity}']")).to_have_count(0)
+    tab.select_option("#logs-severity", "")
+    # Looking at an app: its lines only, until the whole robot is asked for again.
+    tab.evaluate("location.hash = '#/apps/temp_sensor/configurations'")
+    expect(tab.locator("#logs-scope .scope-name")).to_have_text("temp_sensor")
+    expect(tab.locator("#logs-body .log-line").first).to_be_visible()
+    poll_until(lambda: set(tab.locator("#logs-body .log-line").evaluate_all("els => els.map(e => e.dataset.node)"))
+               == {"powertrain.engine.temp_sensor"}, 10, message="only the engine's lines")
+    tab.locator("#logs-scope button").click()
+    expect(tab.locator("#logs-scope .scope-name")).to_have_text("whole robot")
+    expect(tab.locator("#logs-body .log-line[data-node='chassis.odometry']").first).to_be_attached()
+
+
 # ---- "notify me when…" (app/ui/js/notify.js): a LeaveRange trigger and its events ----
 def test_notify_me_when_a_field_leaves_its_range(gw, page):
     from tests.support.linepub import LinePublisher
@@ -493,6 +543,8 @@ def test_notify_me_when_a_field_leaves_its_range(gw, page):
         form.locator("button[type=submit]").click()
         expect(form).to_have_attribute("data-trigger", re.compile(r"^trig_[0-9a-f]{16}$"))
         trig = form.get_attribute("data-trigger")
+        expect(form.locator(".notify-state")).to_have_text("watching")   # the gateway's id is not shown
+        expect(form).not_to_contain_text("trig_")
         made = gw.get(f"/apps/ui_notify_probe/triggers/{trig}").json()
         assert made["trigger_condition"] == {"condition_type": "LeaveRange", "lower_bound": 0, "upper_bound": 10}
         pub.wait_subscribers(2)    # the page's cyclic subscription and the trigger's
@@ -502,8 +554,47 @@ def test_notify_me_when_a_field_leaves_its_range(gw, page):
         expect(events).to_have_count(2)
         expect(events.nth(0)).to_contain_text("left the range: -1")
         expect(events.nth(1)).to_contain_text("left the range: 20")
+        expect(events.nth(0).locator("time")).to_have_text(re.compile(r"^\d\d:\d\d:\d\d\.\d{3}$"))
         form.locator("button[type=submit]").click()   # Stop: the trigger is deleted
         poll_until(lambda: gw.get(f"/apps/ui_notify_probe/triggers/{trig}").status_code == 404, 10,
                    message="the trigger deleted")
     finally:
         pub.stop()
+
+
+# ---- every panel on screen: bounded, within the window, and one screenshot each ----------------------
+def test_each_panel_fits_the_window_and_is_screenshot(gw, page, tmp_path):
+    """The page fits a 1360×860 window: the logs stay in view below a long value, and the faults list
+    scrolls inside its panel.  Each panel is saved as a picture (``SOVD_UI_SHOTS=<dir>`` keeps them) for a
+    person to look at."""
+    tab, _ = page
+    shots = os.environ.get("SOVD_UI_SHOTS") or str(tmp_path)
+    os.makedirs(shots, exist_ok=True)
+    none_left(gw, "odometry")
+    tab.goto(gw.url + "/ui/#/apps/odometry/data/chassis/odom")
+    sign_in(tab)
+    expect(leaf(tab, "pose.pose.position.x")).to_have_text(NUMBER)
+    expect(tab.locator("#health li[data-key='faults']")).to_be_visible()
+    expect(tab.locator(".fault[data-code='ODOMETRY_WHEEL_SLIP']")).to_be_visible(timeout=45_000)
+    expect(tab.locator("#logs-body .log-line").first).to_be_visible()
+    tab.locator(".fault[data-code='ODOMETRY_WHEEL_SLIP'] .fault-head").click()
+    expect(tab.locator(".fault[data-code='ODOMETRY_WHEEL_SLIP'] table.frame")).to_be_visible()
+    height = VIEWPORT["height"]
+    for panel in ("nav.tree-panel", "#item", "#health", "#faults", "#logs"):
+        box = tab.locator(panel).bounding_box()
+        assert box["y"] >= 0 and box["y"] + box["height"] <= height + 1, (panel, box)
+    shots_taken = {"page": tab.screenshot(path=f"{shots}/page.png")}
+    for name, selector in (("tree", "nav.tree-panel"), ("item", "#item"), ("health", "#health"),
+                           ("faults", "#faults"), ("logs", "#logs")):
+        shots_taken[name] = tab.locator(selector).screenshot(path=f"{shots}/{name}.png")
+    tab.locator("#health details.raw-counters summary").click()
+    shots_taken["health-raw"] = tab.locator("aside.side").screenshot(path=f"{shots}/health-raw.png")
+    tab.evaluate("location.hash = '#/apps/calibration/operations'")
+    action = tab.locator("form.operation[data-operation='long_calibration']")
+    expect(action.locator("ol.op-past")).to_be_attached()
+    shots_taken["operations"] = tab.locator("#item").screenshot(path=f"{shots}/operations.png")
+    tab.evaluate("location.hash = '#/apps/temp_sensor/configurations'")
+    expect(tab.locator("#item form.parameter").first).to_be_visible()
+    shots_taken["parameters"] = tab.locator("#item").screenshot(path=f"{shots}/parameters.png")
+    for name, png in shots_taken.items():
+        assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 2000, name

@@ -3,6 +3,8 @@ the demo robot's arm (demo/calibration.py): list, Run a service, Run an action w
 
 from __future__ import annotations
 
+import re
+
 import pytest
 
 from tests.support.gateway import Gateway
@@ -40,12 +42,27 @@ def test_operations_panel_runs_a_service_and_an_action_and_cancels_it(gw, page):
     action.locator("textarea").fill('{"order": 40}')
     action.get_by_role("button", name="Run").click()
     status = action.locator(".form-status")
-    expect(status).to_contain_text("running")
-    expect(action.locator(".op-output")).to_contain_text('"sequence"')   # live feedback
+    expect(status).to_have_text("running")
+    # The latest feedback on one line, and how far the goal is: its list grows toward the goal's order.
+    feedback = action.locator(".op-feedback")
+    expect(feedback).to_have_text(re.compile(r'^Latest feedback: \{"sequence":\[0,1,1(,\d+)*\]\}$'))
+    expect(action.locator(".op-progress span")).to_have_text(re.compile(r"^ ([1-9]|[1-9]\d) %$"))
     action.get_by_role("button", name="Cancel").click()
-    expect(status).to_contain_text("failed (canceled)")
+    expect(status).to_have_text("canceled")                    # not SOVD's "failed"
     ids = [i["id"] for i in gw.get("/apps/calibration/operations/long_calibration/executions").json()["items"]]
     assert ids, "the goal the page sent is listed"
+    # The past executions, newest first, each in an operator's words.
+    past = action.locator("ol.op-past li")
+    expect(past.first).to_have_attribute("data-id", ids[0])
+    expect(past.first).to_have_attribute("data-state", "canceled")
+    # A goal that runs to its end: completed, with its result.
+    action.locator("textarea").fill('{"order": 2}')
+    action.get_by_role("button", name="Run").click()
+    expect(status).to_have_text("completed")
+    expect(action.locator(".op-output")).to_contain_text('"sequence": [')
+    expect(action.locator(".op-progress span")).to_have_text(" 100 %")
+    expect(past.first).to_have_attribute("data-state", "completed")
+    expect(past.nth(1)).to_have_attribute("data-state", "canceled")
 
 
 def test_a_body_that_does_not_fit_is_answered_next_to_the_form(gw, page):  # noqa: F811

@@ -13,6 +13,9 @@ import { ItemView } from "./item.js";
 import { OperationsView } from "./ops.js"; // operations: services and actions
 import { EntityTree } from "./tree.js";
 import { FaultsPanel } from "./faults.js"; // faults
+import { LogsPanel } from "./logs.js"; // logs: a live tail of /rosout
+import { ParametersView } from "./params.js"; // the Parameters panel of an app
+import { follow } from "./scope.js"; // the entity whose faults and logs the panels show
 
 const TREE_RELOAD_MS = 30000;
 const ROUTE = /^#\/(apps|components|functions)\/([A-Za-z0-9_-]+)\/data\/(.+)$/;
@@ -25,7 +28,10 @@ let overviewLoaded = false;
 
 const tree = new EntityTree($("tree"), $("tree-status"), $("search"), $("show-system"));
 const health = new HealthPanel($("health-body"), $("worker-badge"));
-new FaultsPanel($("faults-body")).start(); // faults: the Faults panel, live from the fault stream
+const faults = new FaultsPanel($("faults-body"), $("faults-scope"), health);
+const logs = new LogsPanel({ body: $("logs-body"), severity: $("logs-severity"), node: $("logs-node"),
+                             search: $("logs-search"), status: $("logs-status"), scope: $("logs-scope") });
+const ENTITY = /^#\/(apps|components|functions)\/([A-Za-z0-9_-]+)(\/|$)/;
 
 async function loadOverview() {
   try {
@@ -45,6 +51,9 @@ function showRoute() {
   if (view) view.destroy();
   view = null;
   tree.select(location.hash);
+  // The Faults and Logs panels follow the entity the page looks at (scope.js)
+  const entity = ENTITY.exec(decodeURI(location.hash));
+  follow(entity ? { collection: entity[1], id: entity[2] } : null);
   const container = $("item");
   // operations: services and actions (the Operations panel of an app)
   const ops = OPS_ROUTE.exec(decodeURI(location.hash));
@@ -53,7 +62,7 @@ function showRoute() {
     view.start();
     return;
   }
-  // ui (issue 21): the Parameters panel of an app (#/apps/<id>/configurations, js/params.js)
+  // the Parameters panel of an app (#/apps/<id>/configurations, js/params.js)
   const params = /^#\/(apps|components|functions)\/([A-Za-z0-9_-]+)\/configurations$/.exec(decodeURI(location.hash));
   if (params) {
     view = new ParametersView(container, { collection: params[1], entityId: params[2] }, { capabilities });
@@ -98,11 +107,5 @@ health.start();
 await loadOverview();
 tree.load();
 showRoute();
-
-// logs (issue 22): the Logs panel, a live tail of every node's /rosout lines (js/logs.js)
-import { LogsPanel } from "./logs.js";
-
-new LogsPanel($("logs-body"), $("logs-severity"), $("logs-status")).start();
-
-// ui (issue 21): the Parameters panel (js/params.js), shown by showRoute for #/apps/<id>/configurations
-import { ParametersView } from "./params.js";
+faults.start(capabilities); // live from the fault stream; Clear only when the gateway clears faults
+logs.start();

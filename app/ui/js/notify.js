@@ -2,12 +2,14 @@
 //
 //   start   POST {entity}/triggers {LeaveRange, lower_bound, upper_bound, path, multishot}, then an
 //           EventSource on its event_source; each event is listed (newest first, at most MAX_SHOWN)
+//           with its time in the page's one format; the trigger's id is the gateway's business, not
+//           shown (the form keeps it in data-trigger)
 //   stop    DELETE (the gateway ends the stream at once), then the EventSource is closed
 //
 // The trigger lives LIFETIME_S at most, so a page that dies does not leave it behind for long.
 
 import { describe, request, url } from "./api.js";
-import { h } from "./dom.js";
+import { h, timeEl } from "./dom.js";
 import { valueAt } from "./jsontree.js";
 
 const LIFETIME_S = 3600;
@@ -70,7 +72,7 @@ export class NotifyForm {
       this.button.disabled = false;
     }
     this.button.textContent = "Stop";
-    this.state.textContent = `watching (${this.trigger.id})`;
+    this.state.textContent = "watching";
     this.form.dataset.trigger = this.trigger.id;
     const source = new EventSource(url(this.trigger.event_source));
     this.source = source;
@@ -85,7 +87,7 @@ export class NotifyForm {
     const value = event.payload !== undefined
       ? valueAt(event.payload, this._keys()) : undefined;
     const text = event.error !== undefined ? `error: ${event.error}` : `left the range: ${JSON.stringify(value)}`;
-    this.list.prepend(h("li", {}, h("time", {}, event.timestamp), " ", text));
+    this.list.prepend(h("li", {}, timeEl(event.timestamp, { withMs: true }), " ", text));
     while (this.list.children.length > MAX_SHOWN) this.list.lastChild.remove();
     this.form.dataset.events = String(Number(this.form.dataset.events || 0) + 1);
   }

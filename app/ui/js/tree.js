@@ -6,13 +6,20 @@
 // item links to the view of that topic under its app ("#/apps/<id>/data/<topic>").
 //
 // The filter matches a topic name, an app id or its ROS node name; matching branches open.
-// /rosout and /parameter_events (every node has them) are hidden unless asked for.
+// Hidden topics (a name part that starts with "_", such as an action's .../_action/feedback) and
+// /rosout and /parameter_events (every node has them) are left out unless asked for, as
+// `ros2 topic list` leaves hidden topics out; a filter that names one shows it.
 // Open branches stay open across reloads.
 
 import { describe, get } from "./api.js";
 import { fill, h } from "./dom.js";
 
 const SYSTEM_TOPICS = new Set(["/rosout", "/parameter_events"]);
+
+/** Whether a topic is left out by default: /rosout, /parameter_events, or hidden (a part starts with "_"). */
+export function isHiddenTopic(name) {
+  return SYSTEM_TOPICS.has(name) || name.split("/").some((part) => part.startsWith("_"));
+}
 
 /** The hash route of a data item under an entity ("/api/v1/apps/x", "/a/b") → "#/apps/x/data/a/b". */
 export function itemRoute(entityHref, topic) {
@@ -104,7 +111,7 @@ export class EntityTree {
       const node = (app["x-medkit"] && app["x-medkit"].ros2 && app["x-medkit"].ros2.node) || "";
       const appMatches = matches(app.id, app.name, node);
       const items = (topics.get(app.id) || [])
-        .filter((t) => system || !SYSTEM_TOPICS.has(t.name) || (query && matches(t.name)))
+        .filter((t) => system || !isHiddenTopic(t.name) || (query && matches(t.name)))
         .filter((t) => appMatches || matches(t.name))
         .sort((a, b) => a.name.localeCompare(b.name));
       if (!appMatches && items.length === 0) return null;
