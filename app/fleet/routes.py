@@ -140,6 +140,9 @@ def entity_part(collection: str, entity_id: str, rest: str):
 
 def _entity(collection: str, entity_id: str, rest: str):
     authorize_change()
+    if fleet.is_write(request.method) and not config().fleet_allow_writes:
+        raise ApiError(403, "forbidden", "Writes through the fleet are disabled on this fleet gateway",
+                       {"details": "start it with --fleet-allow-writes (and each robot's gateway too)"})
     check_entity_id(entity_id)
     found = link.get().call("fleet_entity", {"collection": collection, "id": entity_id})
     if not found.get("found"):
@@ -170,9 +173,6 @@ def _raw_tail(collection: str, entity_id: str, rest: str) -> str:
 
 
 def _forward(robot: str, path: str):
-    if fleet.is_write(request.method) and not config().fleet_allow_writes:
-        raise ApiError(403, "forbidden", "Writes through the fleet are disabled on this fleet gateway",
-                       {"details": "start it with --fleet-allow-writes (and each robot's gateway too)"})
     answer = link.get().call("fleet_forward", {
         "robot": robot, "method": request.method, "path": path,
         "query": request.query_string.decode("latin-1"), "headers": _headers(),

@@ -183,8 +183,8 @@ class Proc:
 class RosNode(Proc):
     """A real rclpy node in another process (``tests/support/rospub.py``)."""
 
-    def __init__(self, spec: dict, timeout: float = 20.0):
-        super().__init__([sys.executable, "-m", "tests.support.rospub", json.dumps(spec)],
+    def __init__(self, spec: dict, timeout: float = 20.0, env: dict | None = None):
+        super().__init__([sys.executable, "-m", "tests.support.rospub", json.dumps(spec)], env=env,
                          name=f"rosnode {spec.get('node')}")
         self.wait_line(lambda line: line == "READY", timeout)
 

@@ -1,0 +1,43 @@
+"""The fleet's processes for tests (issue 34): a Zenoh router, robots' gateways, the fleet gateway.
+
+- :class:`Router`: ``sovd-zenoh-router`` on a free loopback port (``ready <zid>`` once it listens).
+- :class:`FleetGateway`: ``sovd-gateway --fleet-aggregate``; healthy once ``/health`` says its fleet
+  link answers (it has no ROS worker to wait for).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import requests
+
+from .gateway import Gateway
+from .procs import Proc, free_port
+
+BIN = Path(sys.executable).parent
+TOKEN = "fleet-token-0123456789abcdef"
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
+
+
+class Router(Proc):
+    def __init__(self, *args: str, scheme: str = "tcp", host: str = "127.0.0.1"):
+        self.port = free_port()
+        self.endpoint = f"{scheme}/{host}:{self.port}"
+        super().__init__([str(BIN / "sovd-zenoh-router"), "--listen", self.endpoint, *args], name="zenoh router")
+        self.wait_line(lambda line: line.startswith("ready "), 30)
+
+
+class FleetGateway(Gateway):
+    def _healthy(self) -> bool:
+        if self.proc.poll() is not None:
+            raise AssertionError(f"sovd-gateway exited with {self.proc.returncode}:\n" + self.tail(60))
+        r = requests.get(self.api + "/health", timeout=2)
+        return r.status_code == 200 and r.json()["x-medkit-fleet"]["link_alive"]
+
+    def fleet_link(self):
+        """The fleet-link process (the child that stands where a ROS worker would)."""
+        for p in self._children():
+            if any("fleetlink" in part for part in p.cmdline()):
+                return p
+        raise RuntimeError("no fleet link under the gateway")
