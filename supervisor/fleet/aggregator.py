@@ -235,11 +235,15 @@ class Aggregator:
                         elif next_id - 1 < (robot.last_event or 0):   # its fault store began again
                             robot.last_event = next_id - 1
                     last = robot.last_event or 0
-                    fresh = sorted((e for e in data.get("events") or []
-                                    if isinstance(e, dict) and isinstance(e.get("id"), int) and e["id"] > last),
-                                   key=lambda e: e["id"])
-                    if fresh:
-                        robot.last_event = fresh[-1]["id"]
+                    for event in sorted((e for e in data.get("events") or []
+                                         if isinstance(e, dict) and isinstance(e.get("id"), int)),
+                                        key=lambda e: e["id"]):
+                        if event["id"] > last:     # each id once, however often it is listed
+                            fresh.append(event)
+                            last = event["id"]
+                        else:
+                            self.stats.add("events_duplicates")
+                    robot.last_event = last
             except (orjson.JSONDecodeError, AttributeError, TypeError):
                 log.info("fleet: robot %r answered its events malformed", robot.name)
             finally:

@@ -3,11 +3,15 @@
 - :class:`Router`: ``sovd-zenoh-router`` on a free loopback port (``ready <zid>`` once it listens).
 - :class:`FleetGateway`: ``sovd-gateway --fleet-aggregate``; healthy once ``/health`` says its fleet
   link answers (it has no ROS worker to wait for).
+- :class:`SimFleet`: ``bench/fleetsim.py``'s simulated robots, steered line by line.
 """
 
 from __future__ import annotations
 
+import json
+import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import requests
@@ -41,3 +45,21 @@ class FleetGateway(Gateway):
             if any("fleetlink" in part for part in p.cmdline()):
                 return p
         raise RuntimeError("no fleet link under the gateway")
+
+
+class SimFleet(Proc):
+    """Simulated robots (``bench/fleetsim.py``) on ``router``; ``answers`` as :func:`bench.fleetsim.record` makes."""
+
+    def __init__(self, router: Router, answers: dict, robots: int, **spec):
+        self.answers_file = tempfile.NamedTemporaryFile("w", suffix=".json", delete=False)  # noqa: SIM115
+        json.dump(answers, self.answers_file)
+        self.answers_file.close()
+        full = {"connect": router.endpoint, "robots": robots, "answers": self.answers_file.name, **spec}
+        super().__init__([sys.executable, "-m", "bench.fleetsim", json.dumps(full)], name="fleet simulator",
+                         stdin=subprocess.PIPE)
+        self.wait_line(lambda line: line == "READY", 60)
+
+    def send(self, command: str, timeout: float = 10.0) -> None:
+        self.proc.stdin.write(command + "\n")
+        self.proc.stdin.flush()
+        self.wait_line(lambda line: line in (f"OK {command}",) or line.startswith(f"ERROR {command}"), timeout)

@@ -104,7 +104,7 @@ class Proc:
     """
 
     def __init__(self, argv: list[str], env: dict | None = None, name: str = "proc",
-                 log_path: str | None = None):
+                 log_path: str | None = None, stdin: int | None = None):
         self.name = name
         self.lines: queue.Queue[str] = queue.Queue()
         self.output: list[str] = []
@@ -113,7 +113,7 @@ class Proc:
         self.proc = subprocess.Popen(
             argv, stdout=self._log or subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
             env={**os.environ, **(env or {})}, cwd=REPO, start_new_session=True,
-            stdin=subprocess.DEVNULL if log_path else None,
+            stdin=stdin if stdin is not None else (subprocess.DEVNULL if log_path else None),
         )
         self._reader = None
         if self._log is None:

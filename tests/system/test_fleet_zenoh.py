@@ -257,6 +257,20 @@ def fleet_link_of(gw: Gateway) -> psutil.Process:
     return next(p for p in gateway_processes(gw) if any("fleetlink" in part for part in p.cmdline()))
 
 
+def test_x_the_supervisor_restarts_a_robots_killed_link_and_the_fleet_sees_it_come_back(fleet):
+    gw, robot = fleet["gw"], fleet["robots"]["robot_a"]
+    link = fleet_link_of(robot)
+    link.kill()
+    poll_until(lambda: {p["name"]: p["status"] for p in gw.get("/health").json()["peers"]}["robot_a"] == "offline",
+               20, interval=0.1, message="robot_a offline")
+    assert robot.get("/apps").status_code == 200        # the robot itself goes on serving its own API
+    poll_until(lambda: {p["name"]: p["status"] for p in gw.get("/health").json()["peers"]}["robot_a"] == "online",
+               30, interval=0.2, message="robot_a back online")
+    assert fleet_link_of(robot).pid != link.pid
+    poll_until(lambda: read_marker(gw, dict((v, k) for k, v in markers(gw).items())["robot_a"]) == "robot_a", 20,
+               interval=0.2, message="robot_a read through the fleet again")
+
+
 def test_y_a_robot_whose_link_is_silent_is_in_failed_peers_within_the_timeout(fleet):
     gw, silent = fleet["gw"], fleet["robots"]["robot_b"]
     link = fleet_link_of(silent)
