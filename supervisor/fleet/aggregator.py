@@ -176,6 +176,7 @@ class Aggregator:
         parsed = wire.parse_key(str(sample.key_expr))
         robot = self.robots.get(parsed[0]) if parsed else None
         if robot is not None:
+            robot.tree_changes += 1
             robot.tree_due = 0.0
 
     def _on_fault(self, sample) -> None:
@@ -429,6 +430,7 @@ class Aggregator:
 
     def _read_tree(self, robot: Robot) -> None:
         robot.tree_reading = True
+        changes = robot.tree_changes
         with self._lock:
             self._reads += 1
         timeout = self.cfg.fleet_timeout * TREE_TIMEOUT_FACTOR
@@ -440,7 +442,9 @@ class Aggregator:
                 problem = merge.tree_problem(tree) if status == 200 else f"status {status or 'none'}"
                 if problem is None:
                     robot.tree, robot.tree_bytes = tree, len(body)
-                    robot.tree_due = time.monotonic() + self.cfg.fleet_tree_refresh
+                    # a change announced while this read was under way: read once more
+                    robot.tree_due = 0.0 if robot.tree_changes != changes else \
+                        time.monotonic() + self.cfg.fleet_tree_refresh
                     self.stats.add("tree_reads")
                     self._changed()
                 else:

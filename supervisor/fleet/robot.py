@@ -315,9 +315,9 @@ class RobotLink:
             current = answer.get("generation")
             if not isinstance(current, int) or current == generation:
                 continue
-            if generation is not None:
-                self._tree_pub.put(orjson.dumps({"generation": current}))
-                self.stats.add("tree_changes")
+            # The first answer too: the fleet may have read the tree before this link first looked.
+            self._tree_pub.put(orjson.dumps({"generation": current}))
+            self.stats.add("tree_changes")
             generation = current
 
 

@@ -41,6 +41,7 @@ class Robot:
     tree_bytes: int = 0
     tree_due: float = 0.0                                  # monotonic: read its tree at or after this
     tree_reading: bool = False
+    tree_changes: int = 0                                  # changes announced (a read in flight may predate one)
     ping_due: float = 0.0
     latency_ms: float | None = None
     queries: int = 0
