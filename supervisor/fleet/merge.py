@@ -181,14 +181,16 @@ def merge(trees: list[RobotTree], generation: int) -> Merged:
             if robot not in claims[item["id"]]:
                 claims[item["id"]].append(robot)
         remap: dict[str, str] = {}
+        seen: set[str] = set()
         for item in lists.get("apps") or []:
             app_id, name = item["id"], item.get("name", item["id"])
-            if app_id in items["apps"] or app_id in remap:
+            if app_id in seen:
+                continue  # the robot offered the same app twice
+            seen.add(app_id)
+            if app_id in items["apps"]:
                 remap[app_id] = f"{robot}{SEPARATOR}{app_id}"
                 name = f"{robot}{SEPARATOR}{name}"
             fleet_id = remap.get(app_id, app_id)
-            if fleet_id in items["apps"]:
-                continue  # the robot offered the same app twice
             add("apps", item, robot, available, fleet_id, name)
             routes[("apps", fleet_id)] = (robot, app_id)
         renamed[robot] = remap
