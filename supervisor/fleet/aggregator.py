@@ -436,6 +436,7 @@ class Aggregator:
         timeout = self.cfg.fleet_timeout * TREE_TIMEOUT_FACTOR
         payload = wire.request("GET", wire.API + "/", headers=self.auth, budget_ms=int(timeout * 1000))
 
+
         def answered(status: int, body: bytes) -> None:
             try:
                 tree = orjson.loads(body) if status == 200 else None

@@ -71,7 +71,7 @@ class RobotLink:
         self._stop = threading.Event()
         self._declared: list[Any] = []
         self._threads: list[threading.Thread] = []
-        self._fault_pub = self._tree_pub = None
+        self._fault_pub = None
         self._session = None
         self.last_fault_id = 0
 
@@ -85,7 +85,6 @@ class RobotLink:
             session.declare_queryable(write_key, self._on_query),
         ]
         self._fault_pub = session.declare_publisher(wire.event_key(self.fleet_id, "faults"))
-        self._tree_pub = session.declare_publisher(wire.event_key(self.fleet_id, "tree"))
         for name, target in (("fleet-events", self._relay_events), ("fleet-tree", self._watch_tree)):
             thread = threading.Thread(target=target, name=name, daemon=True)
             thread.start()
@@ -94,7 +93,7 @@ class RobotLink:
 
     def close(self) -> None:
         self._stop.set()
-        for entity in (*self._declared, self._fault_pub, self._tree_pub):
+        for entity in (*self._declared, self._fault_pub):
             if entity is not None:
                 try:
                     entity.undeclare()
@@ -316,7 +315,7 @@ class RobotLink:
             if not isinstance(current, int) or current == generation:
                 continue
             # The first answer too: the fleet may have read the tree before this link first looked.
-            self._tree_pub.put(orjson.dumps({"generation": current}))
+            self._session.put(wire.event_key(self.fleet_id, "tree"), orjson.dumps({"generation": current}))
             self.stats.add("tree_changes")
             generation = current
 

@@ -60,7 +60,7 @@ def fleet():
         sim = SimFleet(router, recorded(), ROBOTS, slow=2, slow_ms=[60, 120], hung=1)
         started.append(sim)
         gw = FleetGateway("--api-token", TOKEN, "--fleet-aggregate", "--fleet-connect", router.endpoint,
-                          "--fleet-timeout", str(TIMEOUT), "--workers", "1")
+                          "--fleet-timeout", str(TIMEOUT), "--workers", "1", "--fleet-tree-refresh", "86400")
         started.append(gw)
         # the hung robot's tree never comes: the others'
         poll_until(lambda: len(gw.get("/components", headers=AUTH).json()["items"]) == ROBOTS - 1, 60,

@@ -6,6 +6,8 @@ documented configuration is the tested one.  A robot (a real gateway with ``--fl
 fleet gateway connect with their certificates; then:
 
 - the fleet works: the robot is learned, its tree merged, a read forwarded, a wildcard query answered;
+- its events pass: a fault on the robot reaches the fleet's stream, a new node its tree (announced: the
+  fleet gateway's backstop read is a day away);
 - a session whose certificate the ACL names nowhere (same CA) learns nothing and gets no answer;
 - no certificate, or one of another CA: no session at all;
 - a robot cannot speak for another: a token under another robot's key is refused at the router.
@@ -14,14 +16,17 @@ fleet gateway connect with their certificates; then:
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import pytest
 
+from bench.diagpub import DiagPub
 from ipc import fleet as wire
 from tests.support.fleet import AUTH, TOKEN, FleetGateway, Router, make_pki
 from tests.support.gateway import Gateway
 from tests.support.procs import RosNode, free_port, poll_until
+from tests.support.sse import EventStream
 
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "fleet"
 
@@ -70,8 +75,9 @@ def fleet(tmp_path_factory):
         robot = Gateway("--workers", "1", "--api-token", TOKEN, "--fleet-link", "--fleet-id", "robot_a",
                         "--fleet-zenoh-config", adapted("robot.json5", pki, port))
         started.append(robot)
-        gw = FleetGateway("--workers", "1", "--api-token", TOKEN, "--fleet-aggregate",
-                          "--fleet-zenoh-config", adapted("fleet-gateway.json5", pki, port))
+        # no backstop read of the trees: a change must come through the robot's announcement
+        gw = FleetGateway("--workers", "1", "--api-token", TOKEN, "--fleet-aggregate", "--fleet-tree-refresh",
+                          "86400", "--fleet-zenoh-config", adapted("fleet-gateway.json5", pki, port))
         started.append(gw)
         yield {"gw": gw, "robot": robot, "pki": pki, "port": port}
     finally:
@@ -97,6 +103,28 @@ def test_the_fleet_works_over_tls_with_access_control(fleet):
         assert wire.read_reply(replies[0].payload.to_bytes())[0] == 200
     finally:
         fleet_session.close()
+
+
+def test_events_and_tree_changes_pass_the_access_control(fleet):
+    gw = fleet["gw"]
+    node = RosNode({"node": "tls_late", "publish": [
+        {"topic": "tls_late", "type": "std_msgs/msg/String", "rate": 2, "value": {"data": "late"}}]})
+    pub = DiagPub("tlspump", rate=5)
+    try:
+        poll_until(lambda: any(a["id"] == "tls_late" for a in gw.get("/apps", headers=AUTH).json()["items"]), 30,
+                   interval=0.2, message="a node started later, in the fleet's tree")
+        with EventStream(gw.port, "/api/v1/faults/stream", headers=AUTH) as stream:
+            assert stream.status == 200
+            pub.set([{"name": "tlspump: Pump", "level": 2, "message": "pressure lost"}])
+            deadline = time.monotonic() + 30
+            while time.monotonic() < deadline:
+                event = stream.next(timeout=deadline - time.monotonic())
+                if event and event["fault"]["fault_code"] == "TLSPUMP_PUMP":
+                    break
+            assert event["fault"]["x-medkit"]["contributors"] == ["peer:robot_a"]
+    finally:
+        pub.stop()
+        node.stop()
 
 
 def test_a_certificate_the_acl_does_not_name_learns_nothing_and_gets_no_answer(fleet):

@@ -60,7 +60,8 @@ def fleet():
                                    "--fault-stale-s", "0", *writes, env=env)
             started.append(robots[name])
         gw = FleetGateway("--api-token", TOKEN, "--fleet-aggregate", "--fleet-connect", router.endpoint,
-                          "--fleet-timeout", str(TIMEOUT), "--fleet-allow-writes")
+                          "--fleet-timeout", str(TIMEOUT), "--fleet-allow-writes",
+                          "--fleet-tree-refresh", "86400")   # a tree change must come by its announcement
         started.append(gw)
         poll_until(lambda: len(markers(gw)) == 3 and all(read_marker(gw, a) for a in markers(gw)), 90,
                    interval=0.5, message="every robot's marker readable through the fleet")
