@@ -20,9 +20,13 @@ Commands on stdin, one per line (the tests and the bench steer it this way):
   publish it on ``sovd/<robot>/events/faults``; ``miss ...``: record it without publishing (a lost
   event: the fleet gateway gets it on its next catch-up);
 - ``leave <robot>`` / ``join <robot>``: undeclare / declare again its token and queryables;
+- ``hang <robot>`` / ``unhang <robot>``: it stops answering (its token stays), or answers again;
 - ``tree <robot>``: announce a change of its tree.
 
 Prints ``READY`` once every robot is declared and ``OK <command>`` after each command.
+
+For the bench and the tests alike (the fleet's processes, started with the tests' process harness):
+:class:`Router` (``sovd-zenoh-router`` on a free port) and :class:`SimFleet` (this program, steered).
 """
 
 from __future__ import annotations
@@ -31,14 +35,20 @@ import heapq
 import json
 import random
 import re
+import subprocess
 import sys
+import tempfile
 import threading
 import time
+from pathlib import Path
 from typing import Any
 
 import orjson
 
 from ipc import fleet as wire
+from tests.support.procs import Proc, free_port
+
+BIN = Path(sys.executable).parent
 
 TREE = ("areas", "components", "apps", "functions")
 HELD_MAX = 100_000        # queries a hung robot holds (the oldest let go first)
@@ -189,10 +199,42 @@ class Fleet:
             robot.leave()
         elif verb == "join":
             robot.join(self.session)
+        elif verb in ("hang", "unhang"):
+            robot.hung = verb == "hang"
         elif verb == "tree":
             self.session.put(wire.event_key(robot.name, "tree"), b'{"generation": 0}')
         else:
             raise ValueError(verb)
+
+
+class Router(Proc):
+    """``sovd-zenoh-router`` on a free port; with ``config``, that file says where it listens (``port``)."""
+
+    def __init__(self, config: str | None = None, port: int | None = None, scheme: str = "tcp",
+                 host: str = "127.0.0.1"):
+        self.port = port or free_port()
+        self.endpoint = f"{scheme}/{host}:{self.port}"
+        args = ["--config", config] if config else ["--listen", self.endpoint]
+        super().__init__([str(BIN / "sovd-zenoh-router"), *args], name="zenoh router")
+        self.wait_line(lambda line: line.startswith("ready "), 30)
+
+
+class SimFleet(Proc):
+    """Simulated robots (``bench/fleetsim.py``) on ``router``; ``answers`` as :func:`bench.fleetsim.record` makes."""
+
+    def __init__(self, router: Router, answers: dict, robots: int, **spec):
+        self.answers_file = tempfile.NamedTemporaryFile("w", suffix=".json", delete=False)  # noqa: SIM115
+        json.dump(answers, self.answers_file)
+        self.answers_file.close()
+        full = {"connect": router.endpoint, "robots": robots, "answers": self.answers_file.name, **spec}
+        super().__init__([sys.executable, "-m", "bench.fleetsim", json.dumps(full)], name="fleet simulator",
+                         stdin=subprocess.PIPE)
+        self.wait_line(lambda line: line == "READY", 60)
+
+    def send(self, command: str, timeout: float = 10.0) -> None:
+        self.proc.stdin.write(command + "\n")
+        self.proc.stdin.flush()
+        self.wait_line(lambda line: line in (f"OK {command}",) or line.startswith(f"ERROR {command}"), timeout)
 
 
 def main() -> None:

@@ -202,8 +202,9 @@ class ControlServer:
     """The control thread: ``ping`` and ``stats`` on ``rosworker-ctl.sock``, and the watchdog."""
 
     def __init__(self, zctx: zmq.Context, runtime_dir: str, stats, info: dict[str, Any],
-                 socket_name: str = protocol.CONTROL_SOCKET_NAME):
+                 socket_name: str = protocol.CONTROL_SOCKET_NAME, check_every: float = WATCHDOG_CHECK):
         self.socket_name = socket_name  # the fleet link serves its own (fleetlink-ctl.sock)
+        self.check_every = check_every  # the fleet link has no executor to watch: it looks up seldom
         self.zctx = zctx
         self.runtime_dir = runtime_dir
         self.stats = stats
@@ -265,14 +266,14 @@ class ControlServer:
         try:
             while not self._stop.is_set():
                 try:
-                    if router.poll(int(WATCHDOG_CHECK * 1000), zmq.POLLIN):
+                    if router.poll(int(self.check_every * 1000), zmq.POLLIN):
                         read_requests(router, self.stats, lambda request: self._accept(router, request))
                     self.stats.check_watchdog()
                 except zmq.ContextTerminated:
                     break
                 except Exception:
                     self._contained("the control loop")
-                    self._stop.wait(WATCHDOG_CHECK)  # never a hot loop of the same failure
+                    self._stop.wait(self.check_every)  # never a hot loop of the same failure
         finally:
             router.close(linger=0)
             try:

@@ -28,6 +28,7 @@ from common import settings as config
 from common.process import PidfileHeld, lock_pidfile, package_version
 
 EXIT_OK, EXIT_ORPHANED, EXIT_CONFIG, EXIT_CANNOT_BOOT = 0, 1, 2, 3
+IDLE_WAIT = 2.0   # seconds a thread of the link waits when nothing happens: a robot's link costs little idle
 
 log = logging.getLogger("sovd.fleet")
 
@@ -97,7 +98,8 @@ class Link:
         role_name = "aggregator" if cfg.fleet_aggregate else "robot"
         control = ControlServer(zctx, cfg.runtime_dir, stats,
                                 {"version": package_version(), "role": role_name, "fleet_id": cfg.fleet_id,
-                                 "started_at": time.time()}, socket_name=CONTROL_SOCKET_NAME)
+                                 "started_at": time.time()}, socket_name=CONTROL_SOCKET_NAME,
+                                check_every=IDLE_WAIT)
         control.start()
         channel = None
         if cfg.fleet_aggregate:
@@ -118,7 +120,7 @@ class Link:
                  cfg.fleet_id if not cfg.fleet_aggregate else "fleet gateway", cfg.fleet_connect or "its config")
         try:
             server = Server(zctx, cfg.runtime_dir, stats, handlers(cfg, role, opener, stats))
-            server.serve(lambda: self._signal is not None, wake_fd)
+            server.serve(lambda: self._signal is not None, wake_fd, idle_wait=IDLE_WAIT)
         finally:
             opener.stop()
             stats.set("session_attempts", opener.attempts)

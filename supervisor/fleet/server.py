@@ -46,7 +46,7 @@ class Server:
         self._in_hand = 0
         self._lock = threading.Lock()
 
-    def serve(self, stopping: Callable[[], bool], wake_fd: int | None = None) -> None:
+    def serve(self, stopping: Callable[[], bool], wake_fd: int | None = None, idle_wait: float = 0.5) -> None:
         """Serve until ``stopping()``; ``wake_fd`` (the signal wake-up pipe) ends a wait early."""
         import zmq
 
@@ -58,7 +58,7 @@ class Server:
             poller.register(wake_fd, zmq.POLLIN)
         try:
             while not stopping():
-                ready = dict(poller.poll(500))
+                ready = dict(poller.poll(int(idle_wait * 1000)))
                 if router in ready:
                     read_requests(router, self.stats, self._accept, COMMANDS)
                 if self._wake in ready:
