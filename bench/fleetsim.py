@@ -9,7 +9,7 @@ Each robot ``<prefix>_<nnnn>`` is what a robot's fleet link is to the fleet gate
 (``supervisor/fleet/robot.py``): a liveliness token ``sovd/<id>/alive`` and queryables on
 ``sovd/<id>/read/**`` and ``.../write/**``, answering from ``answers``, recorded from a real gateway
 (:func:`record`), with the robot's host component renamed ``<id>_host`` so the robots do not
-collide; the link's own ``tree``, ``events`` and ``ping`` reads are composed the same way.  Each robot
+collide (in the answers and in the paths asked); the link's own ``tree``, ``events`` and ``ping`` reads are composed the same way.  Each robot
 answers after its own latency, drawn uniformly from ``latency_ms`` (``slow_ms`` for the first
 ``slow`` robots); the last ``hung`` robots keep their token and never answer (a frozen link).  All
 robots share one Zenoh session, and replies leave from one timer thread, never from Zenoh's callbacks.
@@ -112,7 +112,7 @@ class Robot:
             events = [e for e in self.events if after >= 0 and e["id"] > after]
             next_id = (self.events[-1]["id"] + 1) if self.events else 1
             return wire.reply(200, orjson.dumps({"events": events, "next_id": next_id}))
-        path = req["p"] + ("?" + req["q"] if req["q"] else "")
+        path = req["p"].replace(f"/{self.name}_host", f"/{fleet.host}") + ("?" + req["q"] if req["q"] else "")
         recorded = fleet.answers.get(path)
         if recorded is None:
             return wire.error_reply(404, "resource-not-found", "Resource not found", path=req["p"])
@@ -134,6 +134,7 @@ class Fleet:
     def __init__(self, spec: dict[str, Any]):
         recorded = json.load(open(spec["answers"])) if isinstance(spec["answers"], str) else spec["answers"]
         self.answers: dict[str, Any] = recorded["answers"]
+        self.host = recorded["host"]
         self._host = re.compile(r'(?<=["/])' + re.escape(recorded["host"]) + r'(?=["/])')
         rng = random.Random(spec.get("seed", 1))
         n, slow, hung = spec["robots"], spec.get("slow", 0), spec.get("hung", 0)

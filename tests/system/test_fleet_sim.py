@@ -48,6 +48,7 @@ def recorded() -> dict:
              "reporting_sources": ["/body/controller"], "severity_label": "WARN"}
     body = orjson.dumps({"items": [fault], "x-medkit": {"count": 1, "muted_count": 0, "cluster_count": 0}})
     answers["/api/v1/faults"] = {"status": 200, "body": body.decode()}
+    answers["/api/v1/components/simhost/faults"] = {"status": 200, "body": body.decode()}
     return {"host": "simhost", "answers": answers}
 
 
