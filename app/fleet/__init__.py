@@ -38,5 +38,6 @@ def init_app(app: Flask) -> bool:
     from . import routes
 
     app.register_blueprint(routes.bp)
+    app.register_blueprint(routes.robot_bp)   # /fleet/<fleet_id>/...: one robot, and the dashboard on it
     app.register_blueprint(ui.bp)
     return True

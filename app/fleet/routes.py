@@ -19,6 +19,9 @@ The HTTP workers hold no tree and no Zenoh session: every answer comes from the 
 - ``GET /api/v1/faults``: fanned out to every connected robot; ``GET /api/v1/faults/stream``: every
   robot's fault events (``app/fleet/stream.py``).
 - ``/health``: the robots (``peers``: link state, latency) and medkit's ``warnings``.
+- ``/fleet/<fleet_id>/api/v1/...`` (outside medkit's contract, beside ``/ui``): one robot's own API
+  through the fleet, under its own ids, forwarded as the entity routes are; with
+  ``/fleet/<fleet_id>/ui/`` the dashboard shows that robot (its robot picker, ``app/ui/js/fleet.js``).
 
 Every route that shows what the robots hold asks for a valid identity first (``app/routes/auth.py``):
 the fleet gateway's tree and events are the robots' data, and each robot checks the forwarded
@@ -31,7 +34,7 @@ import time
 from typing import Any
 from urllib.parse import quote
 
-from flask import Blueprint, current_app, request
+from flask import Blueprint, current_app, redirect, request
 
 from common.process import DISTRIBUTION, package_version
 from ipc import counters, fleet
@@ -41,7 +44,7 @@ from ..entities import API_BASE, KINDS, RELATIONS, Entity
 from ..errors import ApiError
 from ..routes import faults as fault_routes
 from ..routes import root as root_routes
-from ..routes import unimplemented
+from ..routes import ui, unimplemented
 from ..routes.auth import authorize_change
 from ..routes.common import check_entity_id, config, json_response
 from . import link, stream
@@ -116,6 +119,8 @@ def health():
         "peers": status.get("peers") or [],
         "warnings": status.get("warnings") or [],
         "warning_schema_version": WARNING_SCHEMA_VERSION,
+        # the fleet link stands where a robot's ROS worker stands (the dashboard reads its state here)
+        "x-medkit-subscription-executor": {"worker_alive": alive, "degraded": False},
         "x-medkit-fleet": {**fleet_section(stats), "link_alive": alive,
                            "session_error": status.get("session_error", "")},
     })
@@ -162,7 +167,9 @@ def _raw_path() -> str:
     """The request's path as the client sent it (still percent-encoded), from ``/api/v1`` on."""
     raw = (request.environ.get("RAW_URI") or request.environ.get("REQUEST_URI") or "").split("?", 1)[0]
     at = raw.find(API_BASE + "/")
-    return raw[at:] if at >= 0 else quote(request.path, safe="/:@!$&'()*+,;=-._~")
+    if at < 0:
+        raw, at = quote(request.path, safe="/:@!$&'()*+,;=-._~"), request.path.find(API_BASE + "/")
+    return raw[at:] if at >= 0 else raw
 
 
 def _raw_tail(collection: str, entity_id: str, rest: str) -> str:
@@ -231,3 +238,49 @@ def fault_stream():
         return fleet_link.call("fleet_events", {"after": after}, faultstream.REPLAY_TIMEOUT).get("events") or []
 
     return faultstream.response(stream.hub(cfg.runtime_dir, cfg.stream_send_timeout), cfg.max_fault_streams, replay)
+
+
+# ---- one robot's own API, and the dashboard on it (the robot picker) -------------------------------------
+robot_bp = Blueprint("fleet_robot", __name__, url_prefix="/fleet/<fleet_id>")
+
+
+@robot_bp.after_request
+def _ui_headers(response):
+    """The dashboard's security headers (``app/routes/ui.py``) on its files here too."""
+    return ui._security_headers(response) if "/ui" in request.path else response
+
+
+def _robot_name(fleet_id: str) -> str:
+    if not fleet.valid_fleet_id(fleet_id):
+        raise ApiError(404, "resource-not-found", "Resource not found", {"path": request.path})
+    return fleet_id
+
+
+@robot_bp.get("/")
+def robot_root(fleet_id: str):
+    _robot_name(fleet_id)
+    return redirect("ui/", 302)
+
+
+@robot_bp.get("/ui/")
+def robot_ui(fleet_id: str):
+    _robot_name(fleet_id)
+    return ui.index()
+
+
+@robot_bp.get("/ui/<path:name>")
+def robot_ui_asset(fleet_id: str, name: str):
+    _robot_name(fleet_id)
+    return ui.asset(name)
+
+
+@robot_bp.route("/api/v1/", methods=METHODS, defaults={"rest": ""})
+@robot_bp.route("/api/v1/<data_id:rest>", methods=METHODS)
+def robot_api(fleet_id: str, rest: str):
+    robot = _robot_name(fleet_id)
+    authorize_change()
+    if fleet.is_write(request.method) and not config().fleet_allow_writes:
+        raise ApiError(403, "forbidden", "Writes through the fleet are disabled on this fleet gateway",
+                       {"details": "start it with --fleet-allow-writes (and each robot's gateway too)"})
+    raw = _raw_path()
+    return _forward(robot, raw if raw.startswith(API_BASE + "/") else f"{API_BASE}/{quote(rest)}")

@@ -13,6 +13,7 @@ import { ItemView } from "./item.js";
 import { OperationsView } from "./ops.js"; // operations: services and actions
 import { EntityTree } from "./tree.js";
 import { FaultsPanel } from "./faults.js"; // faults
+import { RobotPicker } from "./fleet.js"; // fleet (issue 34): the robot picker
 
 const TREE_RELOAD_MS = 30000;
 const ROUTE = /^#\/(apps|components|functions)\/([A-Za-z0-9_-]+)\/data\/(.+)$/;
@@ -96,6 +97,8 @@ setInterval(() => {
 
 health.start();
 await loadOverview();
+// fleet (issue 34): the robot picker, on the fleet gateway and on a robot's page through it (js/fleet.js)
+new RobotPicker($("worker-badge").parentElement, $("worker-badge")).start(capabilities);
 tree.load();
 showRoute();
 
