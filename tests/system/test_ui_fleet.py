@@ -68,10 +68,10 @@ def test_the_picker_lists_the_robots_and_opens_one_through_the_fleet(fleet):
             tab.fill("#token", TOKEN)
             poll_until(lambda: any("/fleet/sim_0001/api/v1/" in url for url in watch.requests), 10,
                        message="a read through the fleet")
-            answer = tab.evaluate("""async () => {
-                const r = await fetch("../api/v1/components", {headers: {Authorization: "Bearer %s"}});
+            answer = tab.evaluate("""async (token) => {
+                const r = await fetch("../api/v1/components", {headers: {Authorization: `Bearer ${token}`}});
                 return [r.status, (await r.json()).items.map((c) => c.id)];
-            }""" % TOKEN)
+            }""", TOKEN)
             assert answer == [200, ["sim_0001_host"]]
             tab.locator("#robot-picker").select_option("")
             tab.wait_for_url(re.compile(r"127\.0\.0\.1:\d+/ui/$"))
