@@ -115,6 +115,7 @@ class Link:
             role = RobotLink(cfg, stats)
         opener = zsession.Opener(lambda: zsession.config(cfg), role.attach)
         stats.session_open = lambda: opener.session is not None and not opener.session.is_closed()
+        stats.session_attempts = lambda: opener.attempts
         opener.start()
         log.info("fleet link pid %d started as %s (%s), connecting to %s", os.getpid(), role_name,
                  cfg.fleet_id if not cfg.fleet_aggregate else "fleet gateway", cfg.fleet_connect or "its config")
@@ -123,7 +124,6 @@ class Link:
             server.serve(lambda: self._signal is not None, wake_fd, idle_wait=IDLE_WAIT)
         finally:
             opener.stop()
-            stats.set("session_attempts", opener.attempts)
             role.close()
             zsession.close(opener.session)
             if channel is not None:
@@ -141,7 +141,6 @@ def handlers(cfg: Any, role: Any, opener: Any, stats: Any) -> dict:
     from .server import arg
 
     def status(args: dict, deadline: float) -> dict:
-        stats.set("session_attempts", opener.attempts)
         out = {"role": "aggregator" if cfg.fleet_aggregate else "robot", "fleet_id": cfg.fleet_id,
                "session_open": stats.session_open(), "session_error": opener.last_error}
         if cfg.fleet_aggregate:

@@ -23,6 +23,7 @@ class LinkStats:
         self.ipc_dropped_frames = 0
         self.per_robot: Callable[[], dict[str, dict[str, Any]]] = dict
         self.session_open: Callable[[], bool] = lambda: False
+        self.session_attempts: Callable[[], int] = lambda: 0
 
     def add(self, name: str, n: int = 1) -> None:
         with self._lock:
@@ -42,6 +43,7 @@ class LinkStats:
         with self._lock:
             fleet = dict(self._values)
         fleet["session_open"] = bool(self.session_open())
+        fleet["session_attempts"] = self.session_attempts()
         return {"executor": {"worker_alive": True, "degraded": False},
                 "fleet": fleet, "fleet_robots": self.per_robot(),
                 "details": {"ipc_dropped_frames": self.ipc_dropped_frames}}
