@@ -179,6 +179,8 @@ def read_request(frame: bytes) -> dict[str, Any]:
         raise WireError(f"method {str(method)[:16]!r} is not one the fleet carries")
     if not isinstance(path, str) or not (path == API or path.startswith(API + "/")) or len(path) > 4096:
         raise WireError("path: expected an API path under /api/v1 of at most 4096 characters")
+    if any(segment in (".", "..") for segment in path.split("/")):
+        raise WireError("path: no . or .. segments")
     if any(c in path for c in "\r\n\0?#") or not isinstance(query, str) or len(query) > 4096 \
             or any(c in query for c in "\r\n\0#"):
         raise WireError("path or query string: control characters, '?' or '#' where they do not belong")

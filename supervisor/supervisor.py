@@ -30,6 +30,13 @@ stopping
     worker (it drains), SIGKILL whatever is left past its deadline, reap.  A
     second signal while stopping kills at once.
 
+The fleet (issue 34, ``supervisor/fleet/``, ``docs/fleet.md``): with ``fleet_aggregate`` the
+gateway is the fleet gateway and runs no ROS worker; its fleet link (``sovd-fleetlink``) takes the
+ROS worker's place above (booted, pinged, watched, restarted, its ``ping``/``stats`` on its own
+control socket).  With ``fleet_link`` a robot's fleet link is one more child (``supervisor/fleet/child.py``):
+started once gunicorn answers, restarted with a backoff whenever it dies (never a reason to stop the
+gateway), stopped first.
+
 Signal handlers only record the signal; ``signal.set_wakeup_fd`` wakes the
 main loop, which acts.  Each child runs in its own process group (Ctrl-C in a
 terminal reaches only the supervisor, which stops them in order) with a

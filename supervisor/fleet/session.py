@@ -16,7 +16,6 @@ from __future__ import annotations
 import json
 import logging
 import threading
-import time
 from typing import Any
 
 log = logging.getLogger("sovd.fleet.session")
@@ -102,7 +101,3 @@ def close(session, timeout: float = 3.0) -> None:
     threading.Thread(target=run, name="zenoh-close", daemon=True).start()
     if not done.wait(timeout):
         log.warning("fleet: the Zenoh session did not close within %g s", timeout)
-
-
-def monotonic_ms() -> float:
-    return time.monotonic() * 1000.0

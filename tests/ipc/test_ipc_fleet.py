@@ -60,7 +60,7 @@ def _raw(**fields) -> bytes:
     {"v": 2}, {"m": "TRACE"}, {"p": "/metrics"}, {"p": "/api/v1/apps?x=1"}, {"p": "/api/v1/a\r\nb"},
     {"q": "a\nb"}, {"h": {"Cookie": "x"}}, {"h": {"Authorization": "a\r\nInjected: 1"}},
     {"b": "text"}, {"b": b"x" * (fleet.MAX_REQUEST + 1)}, {"t": 0}, {"t": True}, {"t": 10**9},
-    {"p": "/api/v1/" + "a" * 5000},
+    {"p": "/api/v1/" + "a" * 5000}, {"p": "/api/v1/../../metrics"}, {"p": "/api/v1/apps/./x"},
 ])
 def test_a_request_that_is_not_one_of_ours_is_refused(fields):
     with pytest.raises(fleet.WireError):
