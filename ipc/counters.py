@@ -50,6 +50,7 @@ SECTIONS: dict[str, str | None] = {
     "details": None,
     "operations": "x-medkit-operations",   # operations: services and actions
     "logs": "x-medkit-logs",  # logs: /rosout's ring buffers (issue 22)
+    "locks": "x-medkit-locks",  # SOVD locks (issue 31)
 }
 
 
@@ -222,6 +223,16 @@ COUNTERS: tuple[Counter, ...] = (
       "message, however many triggers watch the topic)", "sovd_ros_trigger_messages"),
     C("streams", "trigger_events", COUNTER, "Trigger events sent to the HTTP workers (firings)",
       "sovd_ros_trigger_events"),
+)
+# ---- x-medkit-locks: SOVD locks (issue 31; rosworker/locks/, the write check in app/locks/) ----
+COUNTERS += (
+    C("locks", "locks_held", GAUGE, "Locks held now", "sovd_ros_locks_held"),
+    C("locks", "locks_acquired", COUNTER, "Locks acquired (break_lock included)", "sovd_ros_locks_acquired"),
+    C("locks", "locks_released", COUNTER, "Locks released by their owners", "sovd_ros_locks_released"),
+    C("locks", "locks_broken", COUNTER, "Locks taken over by another client with break_lock", "sovd_ros_locks_broken"),
+    C("locks", "locks_expired", COUNTER, "Locks that ran out", "sovd_ros_locks_expired"),
+    C("locks", "lock_refusals", COUNTER, "Writes refused 409 because another client's lock covers them",
+      "sovd_http_lock_refusals", origin=HTTP),
 )
 del C
 

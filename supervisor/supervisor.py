@@ -387,8 +387,7 @@ class Supervisor:
                 self._status(f"ROS worker pid {worker.pid} ready; starting gunicorn on {self.cfg.bind}")
                 self._start_http()
             else:
-                self._status(f"ROS worker pid {worker.pid} ready again; gunicorn listening on "
-                             f"http://{self.cfg.bind}")
+                self._status(f"ROS worker pid {worker.pid} ready again; gunicorn listening on {self._url}")
             return None
         if info is not None:
             log.warning("another ROS worker (pid %s) answers on %s; waiting for ours (pid %d)",
@@ -401,11 +400,14 @@ class Supervisor:
             return self._kill_worker(reason)
         return None
 
+    @property
+    def _url(self) -> str:
+        return f"{'https' if self.cfg.tls_cert else 'http'}://{self.cfg.bind}"
+
     def _check_http(self, now: float) -> int | None:
-        if http_answers(self.cfg.bind):
+        if http_answers(self.cfg.bind, tls=bool(self.cfg.tls_cert)):
             self.state = RUNNING
-            text = (f"ROS worker pid {self.worker.pid} ready; gunicorn listening on "
-                    f"http://{self.cfg.bind}")
+            text = f"ROS worker pid {self.worker.pid} ready; gunicorn listening on {self._url}"
             log.info("%s", text)
             self.notifier.ready(text)
             if self.notifier.watchdog_interval:
@@ -456,8 +458,7 @@ class Supervisor:
             return None
         self._degraded_since = None
         if recovered:
-            self._status(f"ROS worker pid {worker.pid} answering again; gunicorn listening on "
-                         f"http://{self.cfg.bind}")
+            self._status(f"ROS worker pid {worker.pid} answering again; gunicorn listening on {self._url}")
         return None
 
     # ---- stopping -------------------------------------------------------------------------

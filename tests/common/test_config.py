@@ -55,7 +55,23 @@ def test_to_env_round_trips():
     (["--bind", "127.0.0.1:70000"], {}, "port of 1–65535"),
     (["--gateway-name", "9bad"], {}, "not a valid ROS node name"),
     (["--log-level", "loud"], {}, "one of debug, info, warning, error"),
-    (["--api-token", "short"], {}, "at least 16 characters"),
+    ([], {"SOVD_API_TOKEN": "short"}, "at least 16 characters"),
+    (["--api-token", "a-long-enough-secret"], {}, "never given as a flag"),
+    (["--jwt-secret", "x" * 40], {}, "SOVD_JWT_SECRET"),
+    (["--auth-clients", "a:b:admin"], {}, "never given as a flag"),
+    ([], {"SOVD_AUTH_ENABLED": "1", "SOVD_AUTH_CLIENTS": "a:b:admin", "SOVD_JWT_SECRET": "short"}, "32 characters"),
+    ([], {"SOVD_AUTH_ENABLED": "1", "SOVD_JWT_SECRET": "x" * 32}, "auth_clients"),
+    ([], {"SOVD_AUTH_CLIENTS": "a:b:superuser"}, "viewer, operator, configurator, admin"),
+    ([], {"SOVD_AUTH_CLIENTS": "a:b:admin,a:c:viewer"}, "given twice"),
+    ([], {"SOVD_AUTH_CLIENTS": "a::admin"}, "empty secret"),
+    ([], {"SOVD_AUTH_CLIENTS": "just-a-name"}, "id:secret:role"),
+    (["--require-auth-for", "some"], {}, "none, write, all"),
+    (["--tls-cert", "/etc/hostname"], {}, "give both"),
+    (["--tls-cert", "/nope.pem", "--tls-key", "/nope.key"], {}, "not a readable file"),
+    ([], {"SOVD_AUTH_ENABLED": "1", "SOVD_AUTH_CLIENTS": "a:b:admin", "SOVD_JWT_ALGORITHM": "RS256",
+          "SOVD_JWT_SECRET": "/nope.pem"}, "RS256 needs a readable PEM file"),
+    (["--token-expiry-seconds", "100", "--refresh-token-expiry-seconds", "50"], {"SOVD_AUTH_ENABLED": "1",
+     "SOVD_AUTH_CLIENTS": "a:b:admin", "SOVD_JWT_SECRET": "x" * 32}, "at least token_expiry_seconds"),
 ])
 def test_out_of_range_values_are_refused_with_a_clear_message(argv, env, needle):
     with pytest.raises(config.ConfigError) as info:
@@ -138,10 +154,12 @@ def test_every_setting_is_in_the_settings_reference():
     """docs/settings.md has one row per setting: its flag, its variable, its default."""
     from tests.support.procs import REPO
 
-    rows = {line.split("|")[1].strip(" `"): line for line in (REPO / "docs" / "settings.md").read_text().splitlines()
-            if line.startswith("| `--")}
+    rows = {line.split("|")[2].strip(" `"): [c.strip() for c in line.split("|")]
+            for line in (REPO / "docs" / "settings.md").read_text().splitlines() if line.startswith("| `--")
+            or line.startswith("| — (a secret)")}
     for s in config.SETTINGS:
-        assert s.flag in rows, f"{s.flag} is not in docs/settings.md"
-        cells = [c.strip() for c in rows[s.flag].split("|")]
-        assert cells[2] == f"`{s.env}`", (s.flag, cells)
-    assert len(rows) == len(config.SETTINGS), set(rows) - {s.flag for s in config.SETTINGS}
+        assert s.env in rows, f"{s.env} is not in docs/settings.md"
+        # a secret has no flag (ps shows a command line); every other setting its own
+        expected = "— (a secret)" if s.secret else f"`{s.flag}`"
+        assert rows[s.env][1].startswith(expected), (s.flag, rows[s.env])
+    assert len(rows) == len(config.SETTINGS), set(rows) - {s.env for s in config.SETTINGS}
