@@ -126,6 +126,24 @@ class FaultStream:
             hub.streams.discard(self)
 
 
+def response(hub: FaultHub, max_streams: int, replay):
+    """The answer to ``GET .../faults/stream``: ``replay(after)`` gives the events after a ``Last-Event-ID``.
+
+    Also the fleet gateway's (``app/fleet/routes.py``), with its own hub and replay."""
+    from flask import current_app, request
+
+    from .errors import ApiError
+
+    if len(hub.streams) >= max_streams:
+        raise ApiError(503, "service-unavailable", "Maximum number of SSE clients reached. Please try again later.",
+                       {"max_fault_streams": max_streams}, headers={"Retry-After": "5"})
+    raw = request.headers.get("Last-Event-ID", "").strip()
+    last_id = int(raw) if raw.isdigit() and len(raw) <= 18 else 0
+    return current_app.response_class(
+        FaultStream(hub, last_id).body(replay, request.environ.get("gunicorn.socket")), mimetype="text/event-stream",
+        headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+
+
 def _gone(sock: Any) -> bool:
     """True when the client closed its connection (a peek at the real socket, never waiting)."""
     real = getattr(sock, "_sock", sock)
@@ -186,17 +204,19 @@ class FaultHub(channel.Subscriber):
                         stream.push(event["id"], frame)
 
 
-def _started(runtime_dir: str, send_timeout: float) -> FaultHub:
-    made = FaultHub(runtime_dir, send_timeout)
+def _started(cls: type[FaultHub], runtime_dir: str, send_timeout: float) -> FaultHub:
+    made = cls(runtime_dir, send_timeout)
     made.start()
     return made
 
 
-_HUBS: dict[str, PerProcess[FaultHub]] = {}
+_HUBS: dict[tuple[type, str], PerProcess[FaultHub]] = {}
 
 
-def hub(runtime_dir: str, send_timeout: float) -> FaultHub:
-    per_process = _HUBS.get(runtime_dir)
+def hub(runtime_dir: str, send_timeout: float, cls: type[FaultHub] = FaultHub) -> FaultHub:
+    """This process's hub of ``cls`` (the fleet gateway's reads its fleet link, app/fleet/stream.py)."""
+    per_process = _HUBS.get((cls, runtime_dir))
     if per_process is None:
-        per_process = _HUBS[runtime_dir] = PerProcess(lambda: _started(runtime_dir, send_timeout), FaultHub.stop)
+        per_process = _HUBS[(cls, runtime_dir)] = PerProcess(lambda: _started(cls, runtime_dir, send_timeout),
+                                                             FaultHub.stop)
     return per_process.get()

@@ -53,6 +53,8 @@ from . import rosclient
 BUCKETS = (0.00025, 0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0)
 METHODS = frozenset({"GET", "HEAD", "POST", "PUT", "DELETE", "PATCH", "OPTIONS"})
 UNMATCHED = "unmatched"
+# app.extensions[COLLECTORS]: what a family adds to a scrape (callables, each making a collector per scrape)
+COLLECTORS = "sovd_metrics_collectors"
 
 bp = Blueprint("metrics", __name__)
 
@@ -339,8 +341,11 @@ def metrics() -> Response:
         MultiProcessCollector(registry, path=path)
     else:
         registry.register(_ThisProcess())
-    registry.register(RosWorkerCollector(rosclient.get(), min(rosclient.STATS_TIMEOUT_S, cfg.ipc_timeout)))
+    if not cfg.fleet_aggregate:  # the fleet gateway runs no ROS worker (app/fleet/)
+        registry.register(RosWorkerCollector(rosclient.get(), min(rosclient.STATS_TIMEOUT_S, cfg.ipc_timeout)))
     registry.register(SupervisorCollector(cfg.runtime_dir))
+    for make in current_app.extensions.get(COLLECTORS, ()):
+        registry.register(make())
     return Response(generate_latest(registry), mimetype=None, content_type=CONTENT_TYPE_LATEST)
 
 

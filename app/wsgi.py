@@ -58,6 +58,10 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
     errors.init_app(app)
     rosclient.init_app(app)
     streams.init_app(app)
+    from . import fleet  # the fleet over Zenoh (issue 34, app/fleet/)
+
+    if fleet.init_app(app):  # the fleet gateway: its own routes, no ROS worker
+        return app
     app.register_blueprint(root.bp)
     app.register_blueprint(discovery.bp)
     app.register_blueprint(data.bp)

@@ -243,6 +243,26 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("tls_key", str, "", "the private key's PEM file of tls_cert"),
     Setting("tls_min_version", str, "1.2", "the oldest TLS version a client may speak",
             choices=("1.2", "1.3")),
+    # --- the fleet over Zenoh (issue 34; docs/fleet.md, supervisor/fleet/, app/fleet/) ---
+    Setting("fleet_link", bool, False, "join the fleet: a fleet-link process answers the fleet's Zenoh "
+            "queries from this gateway's API and publishes its fault and trigger events"),
+    Setting("fleet_aggregate", bool, False, "run as the fleet gateway: no ROS worker; the robots' trees "
+            "merged, their requests forwarded and fanned out (medkit's aggregation contract)"),
+    Setting("fleet_connect", str, "", "Zenoh router endpoints to connect to, comma-separated "
+            "(e.g. tls/fleet.example.com:7447)"),
+    Setting("fleet_id", str, "", "this robot's name in the fleet (default: its host name made an entity id)"),
+    Setting("fleet_zenoh_config", str, "", "Zenoh configuration file (JSON5: TLS certificates, access "
+            "control ...); mode and fleet_connect are applied on top of it"),
+    Setting("fleet_allow_writes", bool, False, "let writes (PUT, POST, DELETE) pass through the fleet "
+            "(each side checks its own switch; the caller's token goes along)"),
+    Setting("fleet_timeout", float, 2.0, "seconds one robot gets to answer a fleet request "
+            "(medkit's aggregation.timeout_ms)", 0.1, 60),
+    Setting("fleet_max_robots", int, 1000, "robots the fleet gateway keeps (trees, link state, metric "
+            "labels); a robot past it is refused and counted", 1, 100000),
+    Setting("fleet_tree_refresh", float, 60.0, "seconds between two reads of a robot's entity tree when it "
+            "announced no change (it announces changes itself)", 1, 86400),
+    Setting("fleet_forget_after", float, 86400.0, "seconds a disconnected robot's tree stays in the fleet "
+            "view, marked unavailable", 1, 31536000, "never"),
 )
 
 BY_NAME = {s.name: s for s in SETTINGS}
@@ -372,6 +392,7 @@ def load(args: argparse.Namespace | None = None, environ: dict[str, str] | None 
     def named(name: str) -> str:
         return f"{name} (from {sources[name]})" if name in sources else name
 
+    check_fleet(values)
     for name in ("rate_limit", "rate_limit_global", "auth_failure_limit"):
         parse_rate(values[name], named(name))
     _check_identity(values, named)
@@ -444,6 +465,42 @@ def _check_identity(values: dict[str, Any], named: Any) -> None:
         path = values[key]
         if path and (not os.path.isfile(path) or not os.access(path, os.R_OK)):
             raise ConfigError(f"{named(key)}: {path!r} is not a readable file")
+# ---- the fleet (issue 34) -------------------------------------------------------------------------
+FLEET_ID_MAX = 64
+# An entity id's characters, no "__" (medkit's rename separator) and no leading or trailing "_".
+_FLEET_ID = re.compile(r"^[A-Za-z0-9-]+(?:_[A-Za-z0-9-]+)*$")
+
+
+def default_fleet_id(hostname: str) -> str:
+    """The host name as a fleet id: lower case, ``[a-z0-9-]`` and single ``_`` only, at most 64."""
+    text = re.sub(r"[^a-z0-9-]+", "_", hostname.lower()).strip("_")[:FLEET_ID_MAX].strip("_")
+    return text or "robot"
+
+
+def check_fleet(values: dict[str, Any]) -> None:
+    """The fleet settings together: one role, somewhere to connect, an identity to check, a valid id."""
+    if not (values["fleet_link"] or values["fleet_aggregate"]):
+        return
+    if values["fleet_link"] and values["fleet_aggregate"]:
+        raise ConfigError("fleet_link and fleet_aggregate: a fleet gateway runs no ROS worker, so it has "
+                          "nothing of its own to answer; turn one of them off")
+    role = "fleet_link" if values["fleet_link"] else "fleet_aggregate"
+    if not values["fleet_connect"].strip() and not values["fleet_zenoh_config"]:
+        raise ConfigError(f"{role}: give fleet_connect (the Zenoh router, e.g. tcp/10.0.0.1:7447) or a "
+                          "fleet_zenoh_config that names one")
+    if not values["api_token"]:
+        raise ConfigError(f"{role}: set api_token: nothing is answered through the fleet without a valid "
+                          "identity (the caller's bearer token, checked by the robot's own gateway)")
+    if values["fleet_zenoh_config"] and not os.path.isfile(values["fleet_zenoh_config"]):
+        raise ConfigError(f"fleet_zenoh_config: {values['fleet_zenoh_config']!r} is not a file")
+    if not values["fleet_id"]:
+        import socket
+
+        values["fleet_id"] = default_fleet_id(socket.gethostname())
+    if len(values["fleet_id"]) > FLEET_ID_MAX or not _FLEET_ID.match(values["fleet_id"]):
+        raise ConfigError(f"fleet_id: {values['fleet_id']!r} is not a fleet id: 1–{FLEET_ID_MAX} letters, "
+                          "digits, - and single _ (not first or last: __ separates a robot's name from a "
+                          "renamed app's id)")
 
 
 @dataclass(frozen=True)

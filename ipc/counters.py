@@ -38,9 +38,11 @@ GAUGE = "gauge"      # goes up and down, or a setting's value
 FLAG = "flag"        # true or false (exported as a 1/0 gauge)
 BY = "by"            # a map: label value -> count (exported as one counter family, ``label`` its label)
 TIMINGS = "timings"  # a map: command -> {"count", "time_us"} (two counter families)
+GAUGES_BY = "gauges by"  # a map: label value -> value now (one gauge family, ``label`` its label)
 
 ROS = "ros"
 HTTP = "http"
+FLEET = "fleet"  # the fleet-link process (supervisor/fleet/), in its own ``stats`` answer
 
 # Sections of the stats answer -> /health's (None: not in /health, only in /metrics).
 SECTIONS: dict[str, str | None] = {
@@ -52,6 +54,10 @@ SECTIONS: dict[str, str | None] = {
     "logs": "x-medkit-logs",  # logs: /rosout's ring buffers (issue 22)
     "locks": "x-medkit-locks",  # SOVD locks (issue 31)
 }
+# The fleet link's sections (issue 34, supervisor/fleet/stats.py): its /health section, and the fleet
+# gateway's per-robot counts, only in /metrics.  Not in the ROS worker's answer.
+FLEET_SECTIONS: dict[str, str | None] = {"fleet": "x-medkit-fleet", "fleet_robots": None}
+ALL_SECTIONS = {**SECTIONS, **FLEET_SECTIONS}
 
 
 @dataclass(frozen=True)
@@ -223,6 +229,65 @@ COUNTERS: tuple[Counter, ...] = (
       "message, however many triggers watch the topic)", "sovd_ros_trigger_messages"),
     C("streams", "trigger_events", COUNTER, "Trigger events sent to the HTTP workers (firings)",
       "sovd_ros_trigger_events"),
+    # ---- the fleet link (issue 34; supervisor/fleet/): both roles ----
+    C("fleet", "session_open", FLAG, "True while the link's Zenoh session is open (connected to a router)",
+      "sovd_fleet_session_open", origin=FLEET),
+    C("fleet", "session_attempts", COUNTER, "Attempts to open the Zenoh session", "sovd_fleet_session_attempts",
+      origin=FLEET),
+    # a robot's link
+    C("fleet", "queries_answered", COUNTER, "Fleet queries this robot answered (any status)",
+      "sovd_fleet_queries_answered", origin=FLEET),
+    C("fleet", "queries_refused", COUNTER, "Fleet queries refused: no valid identity, a write with "
+      "fleet_allow_writes off, a malformed or streaming request", "sovd_fleet_queries_refused", origin=FLEET),
+    C("fleet", "queries_busy", COUNTER, "Fleet queries answered 503 because the link had too many in hand",
+      "sovd_fleet_queries_busy", origin=FLEET),
+    C("fleet", "loopback_errors", COUNTER, "Fleet queries the robot's own gateway did not answer in time",
+      "sovd_fleet_loopback_errors", origin=FLEET),
+    C("fleet", "events_published", COUNTER, "Fault and trigger events this robot published to the fleet",
+      "sovd_fleet_events_published", origin=FLEET),
+    C("fleet", "tree_changes", COUNTER, "Changes of this robot's entity tree announced to the fleet",
+      "sovd_fleet_tree_changes", origin=FLEET),
+    # the fleet gateway's link
+    C("fleet", "robots_known", GAUGE, "Robots in the fleet view (connected or retained)", "sovd_fleet_robots",
+      origin=FLEET),
+    C("fleet", "robots_online", GAUGE, "Robots whose liveliness token is present now", "sovd_fleet_robots_online",
+      origin=FLEET),
+    C("fleet", "max_robots", GAUGE, "Most robots kept (fleet_max_robots)", "sovd_fleet_robots_cap",
+      setting="fleet_max_robots", origin=FLEET),
+    C("fleet", "robots_refused", COUNTER, "Robots not taken in because fleet_max_robots were kept",
+      "sovd_fleet_robots_refused", origin=FLEET),
+    C("fleet", "queries_sent", COUNTER, "Queries sent to robots (a fan-out counts one per robot)",
+      "sovd_fleet_queries_sent", origin=FLEET),
+    C("fleet", "query_failures", COUNTER, "Robots that did not answer a query in time, or failed it",
+      "sovd_fleet_query_failures", origin=FLEET),
+    C("fleet", "fanouts", COUNTER, "Collection requests fanned out to robots", "sovd_fleet_fanouts",
+      origin=FLEET),
+    C("fleet", "forwards", COUNTER, "Requests forwarded to the robot that owns the entity", "sovd_fleet_forwards",
+      origin=FLEET),
+    C("fleet", "tree_reads", COUNTER, "Entity trees read from robots", "sovd_fleet_tree_reads", origin=FLEET),
+    C("fleet", "tree_merges", COUNTER, "Times the fleet's merged tree was rebuilt", "sovd_fleet_tree_merges",
+      origin=FLEET),
+    C("fleet", "tree_entities", GAUGE, "Entities in the merged tree now", "sovd_fleet_tree_entities",
+      origin=FLEET),
+    C("fleet", "tree_bytes", GAUGE, "Bytes of the robots' trees held (their JSON)", "sovd_fleet_tree_bytes",
+      origin=FLEET),
+    C("fleet", "events_received", COUNTER, "Fault events taken from robots (each once)",
+      "sovd_fleet_events_received", origin=FLEET),
+    C("fleet", "events_duplicates", COUNTER, "Fault events dropped as already taken (a replay overlapping)",
+      "sovd_fleet_events_duplicates", origin=FLEET),
+    C("fleet", "events_kept", GAUGE, "Fault events kept for Last-Event-ID replay", "sovd_fleet_events_kept",
+      origin=FLEET),
+    # per robot, bounded by fleet_max_robots (a robot's series go when it is forgotten)
+    C("fleet_robots", "robot_up", GAUGES_BY, "1 while the robot's liveliness token is present",
+      "sovd_fleet_robot_up", label="robot", origin=FLEET),
+    C("fleet_robots", "robot_latency_ms", GAUGES_BY, "The robot's answer time, smoothed over its last answers",
+      "sovd_fleet_robot_latency_seconds", label="robot", scale=1e-3, origin=FLEET),
+    C("fleet_robots", "robot_queries", BY, "Queries sent to the robot", "sovd_fleet_robot_queries",
+      label="robot", origin=FLEET),
+    C("fleet_robots", "robot_failures", BY, "Queries the robot did not answer in time, or failed",
+      "sovd_fleet_robot_failures", label="robot", origin=FLEET),
+    C("fleet_robots", "robot_events", BY, "Fault events taken from the robot", "sovd_fleet_robot_events",
+      label="robot", origin=FLEET),
 )
 # ---- x-medkit-locks: SOVD locks (issue 31; rosworker/locks/, the write check in app/locks/) ----
 COUNTERS += (
@@ -246,6 +311,7 @@ EVICTION_CAUSES = ("graph", "type_change", "lru", "idle", "qos_rebuild", "manual
 
 ROS_COUNTERS = tuple(c for c in COUNTERS if c.origin == ROS)
 HTTP_COUNTERS = tuple(c for c in COUNTERS if c.origin == HTTP)
+FLEET_COUNTERS = tuple(c for c in COUNTERS if c.origin == FLEET)
 
 
 def section(name: str, origin: str | None = None) -> tuple[Counter, ...]:
@@ -273,12 +339,12 @@ def markdown() -> str:
     """The table of every counter, as ipc/PROTOCOL.md holds it between :data:`BEGIN` and :data:`END`."""
     rows = ["| section | key | kind | from | metric | meaning |", "|---|---|---|---|---|---|"]
     for c in COUNTERS:
-        health = SECTIONS[c.section]
+        health = ALL_SECTIONS[c.section]
         where = f"`{c.section}` (`{health}`)" if health else f"`{c.section}`"
         metric = f"`{c.metric}`" + (f" `{{{c.label}}}`" if c.label else "") if c.metric else ""
         if c.metric in TIMINGS_SECONDS:
             metric += f", `{TIMINGS_SECONDS[c.metric][0]}` `{{{c.label}}}`"
-        origin = "ROS worker" if c.origin == ROS else "HTTP workers"
+        origin = {ROS: "ROS worker", HTTP: "HTTP workers", FLEET: "fleet link"}[c.origin]
         rows.append(f"| {where} | `{c.name}` | {c.kind} | {origin} | {metric} | {c.help.replace('|', '/')} |")
     return "\n".join([BEGIN, *rows, END])
 

@@ -46,6 +46,18 @@ def test_the_gate_itself_catches_an_offender():
     assert not IMPORTS_RCLPY.search("# rclpy is not imported here")
 
 
+IMPORTS_ZENOH = re.compile(r"^\s*(import|from)\s+zenoh\b", re.MULTILINE)
+
+
+def test_only_the_fleet_link_holds_a_zenoh_session():
+    """Zenoh (its Rust threads and callbacks) lives in the fleet-link process only (issue 34): never in a
+    gevent HTTP worker, never in the ROS worker, never in the supervisor itself."""
+    offenders = [str(p.relative_to(REPO)) for p in python_files("app", "rosworker", "supervisor", "ipc", "common")
+                 if IMPORTS_ZENOH.search(p.read_text()) and p.parent != REPO / "supervisor" / "fleet"]
+    assert not offenders, f"zenoh imported outside supervisor/fleet/: {offenders}"
+    assert IMPORTS_ZENOH.search("    import zenoh\n") and not IMPORTS_ZENOH.search("# zenoh is not imported")
+
+
 def test_gevent_stays_out_of_the_ros_worker_and_the_supervisor():
     """Only the HTTP workers use gevent (app/http_worker.py patches them after the fork).
 

@@ -207,20 +207,13 @@ def clear_all_global():
 @bp.get("/faults/stream")
 def stream():
     cfg = config()
-    hub = faultstream.hub(cfg.runtime_dir, cfg.stream_send_timeout)
-    if len(hub.streams) >= cfg.max_fault_streams:
-        raise ApiError(503, "service-unavailable", "Maximum number of SSE clients reached. Please try again later.",
-                       {"max_fault_streams": cfg.max_fault_streams}, headers={"Retry-After": "5"})
-    raw = request.headers.get("Last-Event-ID", "").strip()
-    last_id = int(raw) if raw.isdigit() and len(raw) <= 18 else 0
     ros = rosclient.get()
 
     def replay(after: int) -> list[dict[str, Any]]:
         return ros.call("fault_events", {"after": after}, faultstream.REPLAY_TIMEOUT).get("events") or []
 
-    return current_app.response_class(
-        faultstream.FaultStream(hub, last_id).body(replay, request.environ.get("gunicorn.socket")), mimetype="text/event-stream",
-        headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+    return faultstream.response(faultstream.hub(cfg.runtime_dir, cfg.stream_send_timeout), cfg.max_fault_streams,
+                                replay)
 
 
 # ---- an entity's faults ---------------------------------------------------------------------------------

@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from flask import Blueprint
+from flask import Blueprint, current_app
 
 from common.process import DISTRIBUTION, package_version
 from ipc import counters
@@ -49,6 +49,7 @@ def root():
             "configuration_writes": bool(cfg.allow_configurations),
             # medkit's features not served here: their routes answer 501 (app/routes/unimplemented.py)
             **unimplemented.capabilities(),
+            "aggregation": False,  # the fleet gateway's is true (app/fleet/routes.py)
         },
     }
     if cfg.auth_enabled:  # medkit's: only when authentication is on
@@ -121,7 +122,7 @@ def health():
         status = "degraded"
     else:
         status = "healthy"
-    return json_response({
+    body = {
         "status": status,
         "timestamp": time.time_ns(),
         "discovery": {"mode": "runtime_only", "strategy": "runtime"},
@@ -136,7 +137,14 @@ def health():
         "x-medkit-faults": faults_health(stats),  # faults (rosworker/faults.py)
         "x-medkit-logs": _logs_section(stats),  # logs (issue 22)
         "x-medkit-locks": locks.health_section(stats, config()),  # locks (issue 31)
-    })
+    }
+    for name, section in current_app.extensions.get(HEALTH_SECTIONS, {}).items():
+        body[name] = section()   # a family's own section (the fleet link's: app/fleet/)
+    return json_response(body)
+
+
+# app.extensions[HEALTH_SECTIONS]: name -> callable, /health sections a family adds
+HEALTH_SECTIONS = "sovd_health_sections"
 
 
 CONFIGURATION_KEYS = ("parameter_clients", "parameter_client_cap", "parameter_calls_in_flight",

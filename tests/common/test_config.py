@@ -163,3 +163,48 @@ def test_every_setting_is_in_the_settings_reference():
         expected = "— (a secret)" if s.secret else f"`{s.flag}`"
         assert rows[s.env][1].startswith(expected), (s.flag, rows[s.env])
     assert len(rows) == len(config.SETTINGS), set(rows) - {s.env for s in config.SETTINGS}
+
+
+# ---- the fleet over Zenoh (issue 34) -------------------------------------------------------------------
+TOKEN = ["--api-token", "t" * 16]  # a secret: fleet_load puts it in the environment, where secrets go
+
+
+def fleet_load(argv=(), env=None):
+    argv = list(argv)
+    env = dict(env or {})
+    if "--api-token" in argv:
+        at = argv.index("--api-token")
+        env["SOVD_API_TOKEN"] = argv[at + 1]
+        del argv[at:at + 2]
+    return load(argv, env)
+
+
+def test_the_zenoh_fleet_is_off_by_default_and_its_id_defaults_to_the_host_name(monkeypatch):
+    cfg = fleet_load()
+    assert (cfg.fleet_link, cfg.fleet_aggregate, cfg.fleet_allow_writes, cfg.fleet_id) == (False, False, False, "")
+    assert (cfg.fleet_timeout, cfg.fleet_max_robots) == (2.0, 1000)
+    import socket
+
+    monkeypatch.setattr(socket, "gethostname", lambda: "Robot-7.Lab.example.com")
+    cfg = fleet_load(["--fleet-link", "--fleet-connect", "tcp/10.0.0.1:7447", *TOKEN])
+    assert cfg.fleet_id == "robot-7_lab_example_com"
+    assert config.load(None, cfg.to_env()) == cfg          # the children see the same id
+    assert config.default_fleet_id("__") == "robot" and config.default_fleet_id("a..b") == "a_b"
+    cfg = fleet_load(["--fleet-aggregate", *TOKEN], {"SOVD_FLEET_CONNECT": "tls/fleet.example.com:7447"})
+    assert cfg.fleet_aggregate and cfg.fleet_connect == "tls/fleet.example.com:7447"
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--fleet-link", "--fleet-aggregate", "--fleet-connect", "tcp/h:1", *TOKEN], "turn one of them off"),
+    (["--fleet-link", *TOKEN], "give fleet_connect"),
+    (["--fleet-aggregate", "--fleet-connect", "tcp/h:1"], "set api_token"),
+    (["--fleet-link", "--fleet-connect", "tcp/h:1", "--fleet-id", "a__b", *TOKEN], "'a__b' is not a fleet id"),
+    (["--fleet-link", "--fleet-connect", "tcp/h:1", "--fleet-id", "a/b", *TOKEN], "is not a fleet id"),
+    (["--fleet-link", "--fleet-zenoh-config", "/nonexistent.json5", *TOKEN], "is not a file"),
+    (["--fleet-timeout", "0"], "fleet_timeout (from flag --fleet-timeout): 0.0 is out of range"),
+    (["--fleet-max-robots", "0"], "out of range"),
+])
+def test_the_zenoh_fleet_refuses_settings_it_cannot_work_with(argv, needle):
+    with pytest.raises(config.ConfigError) as info:
+        fleet_load(argv)
+    assert needle in str(info.value)

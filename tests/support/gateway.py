@@ -128,3 +128,21 @@ class Gateway(Proc):
         if self._own_state:  # faults
             shutil.rmtree(self.state_dir, ignore_errors=True)
         return code
+
+
+class FleetGateway(Gateway):
+    """``sovd-gateway --fleet-aggregate`` (issue 34): healthy once ``/health`` says its fleet link answers
+    (it has no ROS worker to wait for)."""
+
+    def _healthy(self) -> bool:
+        if self.proc.poll() is not None:
+            raise AssertionError(f"sovd-gateway exited with {self.proc.returncode}:\n" + self.tail(60))
+        r = requests.get(self.api + "/health", timeout=2)
+        return r.status_code == 200 and r.json()["x-medkit-fleet"]["link_alive"]
+
+    def fleet_link(self):
+        """The fleet-link process (the child that stands where a ROS worker would)."""
+        for p in self._children():
+            if any("fleetlink" in part for part in p.cmdline()):
+                return p
+        raise RuntimeError("no fleet link under the gateway")

@@ -16,6 +16,13 @@ const REQUEST_TIMEOUT_MS = 10000;
 // changing and deleting cyclic subscriptions.  setToken() tells the page ("sovd-token").
 let token = "";
 
+// Through the fleet gateway every read needs the token too (fleet.js turns this on).
+let readsNeedToken = false;
+
+export function setReadsNeedToken(value) {
+  readsNeedToken = Boolean(value);
+}
+
 export function getToken() {
   return token;
 }
@@ -50,7 +57,7 @@ export async function request(method, path, { body, headers = {}, timeout = REQU
                                               keepalive = false } = {}) {
   const init = { method, headers: { Accept: "application/json", ...headers }, keepalive,
                  signal: AbortSignal.timeout(timeout) };
-  if (token && method !== "GET" && !init.headers.Authorization) init.headers.Authorization = `Bearer ${token}`;
+  if (token && (method !== "GET" || readsNeedToken) && !init.headers.Authorization) init.headers.Authorization = `Bearer ${token}`;
   if (body !== undefined) {
     init.body = JSON.stringify(body);
     init.headers["Content-Type"] = "application/json";

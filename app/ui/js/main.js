@@ -16,6 +16,7 @@ import { FaultsPanel } from "./faults.js"; // faults
 import { LogsPanel } from "./logs.js"; // logs: a live tail of /rosout
 import { ParametersView } from "./params.js"; // the Parameters panel of an app
 import { follow } from "./scope.js"; // the entity whose faults and logs the panels show
+import { RobotPicker } from "./fleet.js"; // fleet (issue 34): the robot picker
 
 const TREE_RELOAD_MS = 30000;
 const ROUTE = /^#\/(apps|components|functions)\/([A-Za-z0-9_-]+)\/data\/(.+)$/;
@@ -105,6 +106,8 @@ setInterval(() => {
 
 health.start();
 await loadOverview();
+// fleet (issue 34): the robot picker, on the fleet gateway and on a robot's page through it (js/fleet.js)
+new RobotPicker($("worker-badge").parentElement, $("worker-badge")).start(capabilities);
 tree.load();
 showRoute();
 faults.start(capabilities); // live from the fault stream; Clear only when the gateway clears faults
