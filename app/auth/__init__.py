@@ -142,33 +142,52 @@ def lock_owner(req=None) -> str | None:
 
 
 # ---- the check -------------------------------------------------------------------------------------
+def authenticate(req=None) -> Identity:
+    """The request's identity, or :class:`OAuthError` (401; 429 while its address has no failure left).
+
+    A token checked before passes at once; a new one is compared with the secrets only within the
+    address's failure budget, and a refused one spends a failure (``failures.py``).
+    """
+    req = req if req is not None else request._get_current_object()
+    auth: Auth = current_app.extensions[EXTENSION]
+    address = req.environ.get("REMOTE_ADDR") or ""
+    header = req.headers.get("Authorization")
+    if header is None:
+        raise OAuthError(401, "invalid_token", "Missing Authorization header")
+    who = req.environ.get(IDENTITY)
+    if who is None:
+        token = bearer(header)
+        if token is None:
+            raise OAuthError(401, "invalid_token", "Invalid Authorization header format. Expected: Bearer <token>")
+        try:
+            who = auth.tokens.identify(token, gate=lambda: auth.failures.check(address))
+        except TooManyFailures:
+            raise
+        except OAuthError as exc:
+            who = exc
+        req.environ[IDENTITY] = who
+    elif isinstance(who, OAuthError):
+        auth.failures.check(address)
+    if isinstance(who, OAuthError):
+        auth.failures.failed(address)
+        raise who
+    return who
+
+
+def require_identity() -> None:
+    """For a route that wants a known client even for a read (a request through the fleet): 401 without
+    a good token while authentication is on (``auth_enabled`` or the legacy ``api_token``)."""
+    if current_app.extensions[EXTENSION].active:
+        authenticate()
+
+
 def _check() -> Response | None:
     req = request._get_current_object()
     auth: Auth = current_app.extensions[EXTENSION]
     if not auth.required(req.method, req.path):
         return None
-    address = req.environ.get("REMOTE_ADDR") or ""
     try:
-        header = req.headers.get("Authorization")
-        if header is None:
-            raise OAuthError(401, "invalid_token", "Missing Authorization header")
-        who = req.environ.get(IDENTITY)
-        if who is None:
-            token = bearer(header)
-            if token is None:
-                raise OAuthError(401, "invalid_token", "Invalid Authorization header format. Expected: Bearer <token>")
-            try:
-                who = auth.tokens.identify(token, gate=lambda: auth.failures.check(address))
-            except TooManyFailures:
-                raise
-            except OAuthError as exc:
-                who = exc
-            req.environ[IDENTITY] = who
-        elif isinstance(who, OAuthError):
-            auth.failures.check(address)
-        if isinstance(who, OAuthError):
-            auth.failures.failed(address)
-            raise who
+        who = authenticate(req)
         method = "GET" if req.method == "HEAD" else req.method
         if not roles.allowed(who.role, method, targets.of(req).role_path):
             raise OAuthError(403, "insufficient_scope", "Insufficient permissions")
@@ -201,4 +220,5 @@ def init_app(app: Flask) -> None:
 
     app.extensions[EXTENSION] = Auth(app.config["SOVD"])
     app.before_request(_check)
+    app.register_error_handler(OAuthError, oauth_response)  # require_identity() in a route
     app.register_blueprint(routes.bp)
