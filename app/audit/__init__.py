@@ -10,8 +10,8 @@ is on: ``app/auth/``):
   (``data``, ``operations``, ``configurations``, ``faults``, ``locks``, ``auth`` ...),
   ``collection`` and ``entity_id``, ``request_id``, ``status`` (a code, or ``2xx``, ``4xx``,
   ``5xx``), ``since`` and ``until`` (Unix seconds);
-- paging: ``limit`` (1–1000, default 100) records, newest first; ``before`` an id, for the page
-  after one whose last record had that id.  The answer: ``{"items": [...], "next_before"?: id}``
+- paging: ``limit`` (1–1000, default 100) records, newest first (by time, then id); ``before`` an
+  id, for the page after one whose last record had that id.  The answer: ``{"items": [...], "next_before"?: id}``
   (``next_before`` when there may be more).
 
 A record's fields: ``id``, ``timestamp`` (ISO 8601, UTC), ``ts_ns``, ``client_id`` (null when the
@@ -113,13 +113,14 @@ def _status(text: str) -> list[tuple[str, Any]]:
 
 
 def _number(text: str, name: str, whole: bool = False) -> float:
+    """A query parameter as a number from 0 to 10**10 (Unix seconds up to the year 2286; ids, limits)."""
     try:
         value = int(text) if whole else float(text)
     except ValueError:
         value = None
-    if value is None or value != value or value in (float("inf"), float("-inf")) or abs(value) > 1e12:
-        raise ApiError(400, "invalid-parameter", f"{name} must be a {'whole ' if whole else ''}number",
-                       {name: text[:50]})
+    if value is None or not 0 <= value <= 1e10:  # (NaN and the infinities fail too)
+        raise ApiError(400, "invalid-parameter", f"{name} must be a {'whole ' if whole else ''}number from 0 "
+                       "to 10000000000", {name: text[:50]})
     return value
 
 

@@ -15,7 +15,8 @@ gevent's pool, which writes it in one transaction (``app/blocking.py``); records
 exit too.  A failed write keeps the records queued and is tried again.
 
 Retention: past ``audit_max_records`` rows the oldest are deleted, and rows older than
-``audit_max_age_days``, checked every :data:`PRUNE_EVERY` seconds by each worker.
+``audit_max_age_days``, in the transaction of each write (by the primary key and the time index:
+cheap), and every :data:`PRUNE_EVERY` seconds when nothing is written.
 ``audit_max_records = 0`` turns the trail off.
 """
 
@@ -70,7 +71,11 @@ class AuditTrail:
         self._pid = os.getpid()
         self._pending.clear()  # a parent's queue is the parent's to write
         blocking.every(FLUSH_EVERY, self.flush, "audit trail writer")
-        atexit.register(self.flush)
+        atexit.register(self._flush_at_exit)
+
+    def _flush_at_exit(self) -> None:
+        if self._pending and os.path.isdir(os.path.dirname(self.db_path)):  # (a test's directory may be gone)
+            self.flush()
 
     def flush(self) -> None:
         """Write what is queued (blocking: on a pool thread, or at exit)."""
@@ -84,16 +89,14 @@ class AuditTrail:
             with accessdb.connect(self.db_path) as db:
                 db.execute("BEGIN IMMEDIATE")
                 db.executemany(_INSERT, rows)
-                if now - self._pruned >= PRUNE_EVERY:
-                    self._prune(db)
+                self._prune(db)
                 db.execute("COMMIT")
         except (sqlite3.Error, OSError) as exc:
             self.write_errors += 1
             self._pending.extendleft(reversed(rows))  # the oldest go first should the queue fill up
             self._say(f"audit trail: cannot write {self.db_path} ({exc}); {len(self._pending)} records wait")
             return
-        if now - self._pruned >= PRUNE_EVERY:
-            self._pruned = now
+        self._pruned = now
         self.written += len(rows)
         if self.dropped:
             self._say(f"audit trail: {self.dropped} records dropped so far (more than {PENDING_MAX} waited)")
@@ -127,13 +130,20 @@ class AuditTrail:
                 assert column in COLUMNS
                 clauses.append(f"{column} = ?")
             values.append(value)
-        if before is not None:
-            clauses.append("id < ?")
-            values.append(before)
-        sql = f"SELECT id, {', '.join(COLUMNS)} FROM audit"
-        if clauses:
-            sql += " WHERE " + " AND ".join(clauses)
-        sql += " ORDER BY id DESC LIMIT ?"
-        values.append(limit)
         with accessdb.connect(self.db_path) as db:
+            if before is not None:
+                # the page after the record ``before``: older ones, by time then id (a record pruned
+                # since: by id alone)
+                row = db.execute("SELECT ts_ns FROM audit WHERE id = ?", (before,)).fetchone()
+                if row is None:
+                    clauses.append("id < ?")
+                    values.append(before)
+                else:
+                    clauses.append("(ts_ns < ? OR (ts_ns = ? AND id < ?))")
+                    values += [row[0], row[0], before]
+            sql = f"SELECT id, {', '.join(COLUMNS)} FROM audit"
+            if clauses:
+                sql += " WHERE " + " AND ".join(clauses)
+            sql += " ORDER BY ts_ns DESC, id DESC LIMIT ?"
+            values.append(limit)
             return [dict(zip(("id", *COLUMNS), row, strict=True)) for row in db.execute(sql, values)]
