@@ -188,12 +188,29 @@ def _check() -> Response | None:
         return None
     try:
         who = authenticate(req)
-        method = "GET" if req.method == "HEAD" else req.method
-        if not roles.allowed(who.role, method, targets.of(req).role_path):
+        if not _allowed(req, who.role):
             raise OAuthError(403, "insufficient_scope", "Insufficient permissions")
     except OAuthError as exc:
         return oauth_response(exc)
     return None
+
+
+_decisions: dict[tuple[str, str, str, str | None], bool] = {}
+
+
+def _allowed(req, role: str) -> bool:
+    """The role table's answer for this request.  For a matched route it depends only on the role, the
+    method, the rule and its collection (every other variable is one segment to the table:
+    ``app/target.py``), so it is remembered by those (a bounded set); an unmatched path is matched."""
+    method = "GET" if req.method == "HEAD" else req.method
+    rule = req.url_rule
+    if rule is None:
+        return roles.allowed(role, method, targets.of(req).role_path)
+    key = (role, method, rule.rule, (req.view_args or {}).get("collection"))
+    decision = _decisions.get(key)
+    if decision is None:
+        decision = _decisions[key] = roles.allowed(role, method, targets.of(req).role_path)
+    return decision
 
 
 def oauth_response(exc: OAuthError, extra: dict[str, Any] | None = None) -> Response:
