@@ -112,14 +112,7 @@ class TokenService:
         return self._answer(client.client_id, client.role, refresh_jti, refresh, now)
 
     def refresh(self, refresh_token: str) -> Grant:
-        try:
-            header, claims = self._decode(refresh_token)
-        except jwt.ExpiredSignatureError:
-            raise OAuthError(401, "invalid_grant", "Refresh token has expired") from None
-        except jwt.InvalidTokenError as exc:
-            raise OAuthError(401, "invalid_grant", f"Token verification failed: {_reason(exc)}") from None
-        if header.get("typ") != "refresh":
-            raise OAuthError(401, "invalid_grant", "Token is not a refresh token")
+        claims = self._checked(refresh_token, "refresh", "invalid_grant")
         if claims["jti"] in self.revocations.current():
             raise OAuthError(401, "invalid_grant", "Refresh token has been revoked")
         client = self.clients.get(claims["sub"])
@@ -166,15 +159,7 @@ class TokenService:
         return identity
 
     def _verify(self, token: str) -> Identity:
-        try:
-            header, claims = self._decode(token)
-        except jwt.ExpiredSignatureError:
-            raise OAuthError(401, "invalid_token", "Token has expired") from None
-        except jwt.InvalidTokenError as exc:
-            raise OAuthError(401, "invalid_token", f"Token verification failed: {_reason(exc)}") from None
-        if header.get("typ") != "access":
-            raise OAuthError(401, "invalid_token",
-                             f"Invalid token type: expected access, got {str(header.get('typ'))[:20]}")
+        claims = self._checked(token, "access", "invalid_token")
         if claims["sub"] not in self.clients:
             raise OAuthError(401, "invalid_token", "Client no longer exists")
         refresh_jti = claims.get("refresh_token_id")
@@ -187,6 +172,21 @@ class TokenService:
                 self._cache.clear()
         self._cache[token] = identity
         return identity
+
+    def _checked(self, token: str, typ: str, error: str) -> dict[str, Any]:
+        """The claims of a good token of type ``typ``, or :class:`OAuthError` (401 ``error``) saying
+        why not, in medkit's words."""
+        try:
+            header, claims = self._decode(token)
+        except jwt.ExpiredSignatureError:
+            raise OAuthError(401, error, "Refresh token has expired" if typ == "refresh"
+                             else "Token has expired") from None
+        except jwt.InvalidTokenError as exc:
+            raise OAuthError(401, error, f"Token verification failed: {_reason(exc)}") from None
+        if header.get("typ") != typ:
+            raise OAuthError(401, error, "Token is not a refresh token" if typ == "refresh"
+                             else f"Invalid token type: expected access, got {str(header.get('typ'))[:20]}")
+        return claims
 
     def _decode(self, token: str) -> tuple[dict[str, Any], dict[str, Any]]:
         """The verified header and claims (raises PyJWT's errors)."""

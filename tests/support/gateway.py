@@ -95,6 +95,23 @@ class Gateway(Proc):
         kw.setdefault("verify", self.verify)
         return requests.request(method, self.api + path, **kw)
 
+    def worker_sessions(self) -> dict[int, requests.Session]:
+        """One keep-alive session per HTTP worker (each stays on the worker that took its connection),
+        by the pid the debug route tells (start the gateway with ``--debug-commands``)."""
+        sessions: dict[int, requests.Session] = {}
+
+        def both() -> bool:
+            s = requests.Session()
+            pid = s.get(self.api + "/x-sovd-debug/worker", timeout=15, verify=self.verify).json()["pid"]
+            if pid in sessions:
+                s.close()
+            else:
+                sessions[pid] = s
+            return len(sessions) == 2
+
+        poll_until(both, 30, interval=0.01, message="a connection to each HTTP worker")
+        return sessions
+
     def _children(self) -> list[psutil.Process]:
         try:
             return psutil.Process(self.pid).children()

@@ -6,8 +6,6 @@ level with the access log on, its runtime and state directories, the SQLite file
 from __future__ import annotations
 
 import os
-import shutil
-import tempfile
 import time
 from pathlib import Path
 
@@ -33,10 +31,8 @@ def listener():
 
 
 @pytest.fixture(scope="module")
-def dirs():
-    state = tempfile.mkdtemp(prefix="sovd-audit-state-")
-    yield state
-    shutil.rmtree(state, ignore_errors=True)
+def dirs(tmp_path_factory):
+    return str(tmp_path_factory.mktemp("audit-state"))
 
 
 @pytest.fixture(scope="module")

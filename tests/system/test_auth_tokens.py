@@ -11,8 +11,6 @@ import hashlib
 import hmac
 import json
 import os
-import shutil
-import tempfile
 import time
 
 import jwt
@@ -55,10 +53,8 @@ def accepted(gw, token: str) -> bool:
 
 
 @pytest.fixture(scope="module")
-def state_dir():
-    path = tempfile.mkdtemp(prefix="sovd-auth-state-")
-    yield path
-    shutil.rmtree(path, ignore_errors=True)
+def state_dir(tmp_path_factory):
+    return str(tmp_path_factory.mktemp("auth-state"))
 
 
 @pytest.fixture(scope="module")
@@ -100,28 +96,11 @@ def test_a_refresh_token_works_again_and_returns_itself(gw):
     assert r.status_code == 401 and r.json()["error"] == "invalid_grant"
 
 
-def worker_sessions(gw) -> dict[int, requests.Session]:
-    """One kept-alive connection to each of the two HTTP workers (by the pid a debug route tells)."""
-    sessions: dict[int, requests.Session] = {}
-
-    def both() -> bool:
-        session = requests.Session()
-        pid = session.get(gw.api + "/x-sovd-debug/worker", timeout=10).json()["pid"]
-        if pid in sessions:
-            session.close()
-        else:
-            sessions[pid] = session
-        return len(sessions) == 2
-
-    poll_until(both, 30, interval=0.01, message="a connection to each HTTP worker")
-    return sessions
-
-
 def test_a_revoked_refresh_token_takes_its_access_tokens_along_in_both_workers(gw):
     tokens = grant(gw, "operator")
     refreshed = requests.post(gw.api + "/auth/token", json={"grant_type": "refresh_token",
                                                             "refresh_token": tokens["refresh_token"]}, timeout=10).json()
-    sessions = worker_sessions(gw)
+    sessions = gw.worker_sessions()
     for session in sessions.values():  # each worker has checked (and remembers) both access tokens
         for token in (tokens["access_token"], refreshed["access_token"]):
             assert session.post(gw.api + OP, json={}, headers=bearer(token), timeout=10).status_code == 404
