@@ -29,8 +29,11 @@ def run(fn: Callable[..., T], *args: Any) -> T:
     return fn(*args)
 
 
-def every(seconds: float, fn: Callable[[], Any], name: str) -> None:
-    """Call ``fn`` every ``seconds`` for the life of the process (its errors logged, never raised)."""
+def every(seconds: float, fn: Callable[[], Any], name: str) -> Callable[[], None]:
+    """Call ``fn`` every ``seconds`` (its errors logged, never raised) until the function returned is
+    called (or for the life of the process)."""
+    stopped = False
+
     def once() -> None:
         try:
             run(fn)
@@ -41,16 +44,23 @@ def every(seconds: float, fn: Callable[[], Any], name: str) -> None:
         import gevent
 
         def loop() -> None:
-            while True:
+            while not stopped:
                 gevent.sleep(seconds)
-                once()
+                if not stopped:
+                    once()
 
         gevent.spawn(loop)
-        return
-    stop = threading.Event()
+
+        def stop_green() -> None:
+            nonlocal stopped
+            stopped = True
+
+        return stop_green
+    event = threading.Event()
 
     def thread_loop() -> None:
-        while not stop.wait(seconds):
+        while not event.wait(seconds):
             once()
 
     threading.Thread(target=thread_loop, name=name, daemon=True).start()
+    return event.set

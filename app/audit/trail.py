@@ -51,6 +51,7 @@ class AuditTrail:
         self.enabled = max_records > 0
         self._pending: collections.deque[tuple[Any, ...]] = collections.deque(maxlen=PENDING_MAX)
         self._pid = 0
+        self._stop = None
         self._pruned = 0.0
         self._logged = 0.0
         self.dropped = 0
@@ -70,8 +71,15 @@ class AuditTrail:
     def _start(self) -> None:
         self._pid = os.getpid()
         self._pending.clear()  # a parent's queue is the parent's to write
-        blocking.every(FLUSH_EVERY, self.flush, "audit trail writer")
+        self._stop = blocking.every(FLUSH_EVERY, self.flush, "audit trail writer")
         atexit.register(self._flush_at_exit)
+
+    def close(self) -> None:
+        """Write what is queued and stop the writer (an app that is done: a test's)."""
+        if self._pid == os.getpid() and self._stop is not None:
+            self._stop()
+            self._stop = None
+            self._flush_at_exit()
 
     def _flush_at_exit(self) -> None:
         if self._pending and os.path.isdir(os.path.dirname(self.db_path)):  # (a test's directory may be gone)
@@ -83,8 +91,8 @@ class AuditTrail:
         while self._pending:
             rows.append(self._pending.popleft())
         now = time.monotonic()
-        if not rows and now - self._pruned < PRUNE_EVERY:
-            return
+        if not rows and (now - self._pruned < PRUNE_EVERY or not os.path.isdir(os.path.dirname(self.db_path))):
+            return   # (nothing to write, and nothing to prune in a store that is not there)
         try:
             with accessdb.connect(self.db_path) as db:
                 db.execute("BEGIN IMMEDIATE")

@@ -183,7 +183,7 @@ def test_put_configuration_asks_the_token_and_json(env):
     r = gw.put(path, json={"max_entries": 5})
     assert r.status_code == 401 and r.json()["error_code"] == "unauthorized"
     r = gw.put(path, json={"max_entries": 5}, headers={"Authorization": "Bearer wrong"})
-    assert r.status_code == 403 and r.json()["error_code"] == "forbidden"
+    assert r.status_code == 401 and r.json()["error"] == "invalid_token"   # medkit's answer to a bad token
     r = gw.put(path, data="max_entries=5", headers={**AUTH, "Content-Type": "text/plain"})
     assert r.status_code == 415
     assert gw.get(path).json()["max_entries"] == 100

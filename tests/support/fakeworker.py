@@ -141,6 +141,8 @@ class FakeWorker:
 
         for app in self.apps:
             app.extensions[rosclient.EXTENSION].close()
+            if "sovd_audit" in app.extensions:   # the audit trail's writer (app/audit/)
+                app.extensions["sovd_audit"].close()
         self.stop()
         if self._own_dir:
             shutil.rmtree(self.runtime_dir, ignore_errors=True)

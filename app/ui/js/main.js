@@ -18,7 +18,7 @@ import { FaultsPanel } from "./faults.js"; // faults
 import { LogsPanel } from "./logs.js"; // logs: a live tail of /rosout
 import { ParametersView } from "./params.js"; // the Parameters panel of an app
 import { follow } from "./scope.js"; // the entity whose faults and logs the panels show
-import { RobotPicker } from "./fleet.js"; // fleet (issue 34): the robot picker
+import { RobotPicker, fleetPlace } from "./fleet.js"; // fleet (issue 34): the robot picker
 
 const TREE_RELOAD_MS = 30000;
 const ROUTE = /^#\/(apps|components|functions)\/([A-Za-z0-9_-]+)\/data\/(.+)$/;
@@ -49,7 +49,9 @@ async function loadOverview() {
     $("token").hidden = !capabilities.authentication || identitiesOn();
     overviewLoaded = true;
   } catch (error) {
-    if (error instanceof ApiError && error.status === 401) {   // require_auth_for=all: every read wants a token
+    if (error instanceof ApiError && error.status === 401 && !fleetPlace().robot) {
+      // require_auth_for=all: every read wants a token (a robot's page through the fleet wants the fleet's
+      // token for every read too: fleet.js's token field, not a sign-in)
       setIdentities(true);
       setReadsNeedToken(true);
       $("gateway-version").textContent = "sign in to see the robot";
@@ -179,7 +181,7 @@ setInterval(() => {
 // Start the panels once the overview is read: at once, or after the sign-in when every read wants a token.
 async function boot() {
   await loadOverview();
-  if (!overviewLoaded || booted) return;
+  if ((!overviewLoaded && identitiesOn()) || booted) return;   // waits for the sign-in (sovd-auth)
   booted = true;
   health.start();
   // fleet (issue 34): the robot picker, on the fleet gateway and on a robot's page through it (js/fleet.js)
