@@ -79,6 +79,11 @@ class HttpMetrics:
         self.frames_sent = Counter(streams["frames_sent"].metric, streams["frames_sent"].help, registry=None)
         self.frames_dropped = Counter(streams["frames_dropped"].metric, streams["frames_dropped"].help,
                                       registry=None)
+        # Every other counter the HTTP workers keep (ipc/counters.py, origin HTTP), e.g. the lock
+        # refusals of x-medkit-locks: one Counter each, by its declared name.
+        made = {"open_streams", "frames_sent", "frames_dropped"}
+        self.declared = {c.name: Counter(c.metric, c.help, registry=None)
+                         for c in counters.HTTP_COUNTERS if c.kind == counters.COUNTER and c.name not in made}
         self.rate_limited = Counter(
             "sovd_http_rate_limited", "Requests refused with 429 by the rate limiter, by the bucket "
             "that was empty (client or global)", ["scope"], registry=None)
@@ -99,7 +104,7 @@ class HttpMetrics:
 
     def families(self):
         for metric in (self.requests, self.latency, self.streams_open, self.frames_sent,
-                       self.frames_dropped, self.rate_limited):
+                       self.frames_dropped, self.rate_limited, *self.declared.values()):
             yield from metric.collect()
 
 
@@ -128,7 +133,8 @@ _stream_totals: tuple[float, dict[str, int]] = (float("-inf"), {})
 
 
 def stream_totals() -> dict[str, int]:
-    """``open_streams``, ``frames_sent``, ``frames_dropped`` of every HTTP worker (``/health``).
+    """``open_streams``, ``frames_sent``, ``frames_dropped`` (and every other counter of origin HTTP,
+    such as ``lock_refusals``) of every HTTP worker (``/health``).
 
     The sums a scrape makes (open streams of the live workers, frames of every worker since the
     gateway started), read from the multiprocess directory; without it (the Flask test client)

@@ -17,6 +17,7 @@ to one part of the tree (``GET /{collection}/docs`` and below, medkit's
 from __future__ import annotations
 
 import re
+from copy import deepcopy
 from functools import lru_cache
 from typing import Any
 
@@ -1034,6 +1035,23 @@ def _document() -> dict[str, Any]:
         paths.update(_operation_paths(collection))
     for collection in (None, "apps", "components", "functions"):  # faults (issue 22)
         paths.update(_fault_paths(collection))
+    # who is acting (issue 31): the families' own parts (app/auth/doc.py, app/locks/doc.py, app/audit/doc.py),
+    # then what the token, role and lock checks add to every operation
+    from .audit import doc as audit_doc
+    from .auth import doc as auth_doc
+    from .locks import doc as locks_doc
+
+    schemas = {**SCHEMAS, "RootOverview": deepcopy(SCHEMAS["RootOverview"]),
+               "HealthStatus": deepcopy(SCHEMAS["HealthStatus"])}
+    for part in (auth_doc, locks_doc, audit_doc):
+        paths.update(part.paths())
+        schemas.update(part.SCHEMAS)
+    auth_doc.amend(schemas)
+    schemas["HealthStatus"]["properties"]["x-medkit-locks"] = {
+        **_obj(list(counters.health_keys("locks")), **_counter_props("locks")),
+        "description": "SOVD locks: held, acquired, released, broken, expired (ROS worker); writes refused by a "
+                       "lock (every HTTP worker)"}
+    auth_doc.secure(paths, locks_doc.SCOPES)
     return {
         "openapi": "3.1.0",
         "info": {"title": "sovd-gateway", "version": "1.0.0", "x-sovd-version": SOVD_VERSION,
@@ -1052,12 +1070,15 @@ def _document() -> dict[str, Any]:
                  {"name": "Faults", "description": "The robot's /diagnostics as SOVD faults (issue 22)"},
                  *({"name": f.tag, "description": LIFECYCLE_TAG if f.tag == "Lifecycle"
                     else f"Not implemented: 501 ({f.message})"}
-                   for f in unimplemented.FEATURES.values())],
+                   for f in unimplemented.FEATURES.values()),
+                 auth_doc.TAG, locks_doc.TAG, audit_doc.TAG],
         "paths": paths,
         "components": {
-            "schemas": SCHEMAS, "responses": {"GenericError": GENERIC_ERROR},
-            "securitySchemes": {"bearerAuth": {"type": "http", "scheme": "bearer",
-                                               "description": "required for PUT when an API token is set"}},
+            "schemas": schemas, "responses": {"GenericError": GENERIC_ERROR},
+            "securitySchemes": {"bearerAuth": {"type": "http", "scheme": "bearer", "bearerFormat": "JWT",
+                                               "description": "an access token of POST /auth/authorize (or the "
+                                                              "legacy api_token): for writes under "
+                                                              "require_auth_for=write, for every request under all"}},
         },
     }
 

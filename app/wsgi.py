@@ -47,6 +47,13 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
     metrics.init_app(app)
     clientaddr.init_app(app)
     ratelimit.init_app(app)
+    # Who is acting (issue 31): every request's token and role (app/auth/), then every write's
+    # lock check (app/locks/), both before any route runs; every write's audit record after it.
+    from . import audit, auth, locks
+
+    auth.init_app(app)
+    locks.init_app(app)
+    audit.init_app(app)
     cors.init_app(app)
     errors.init_app(app)
     rosclient.init_app(app)

@@ -28,6 +28,8 @@ difference between figures of the same run.
 | made-up topics | ROS worker CPU with 1,000 ``fast`` subscriptions on topics nobody publishes, against the same worker holding none |
 | subscription changes | median POST and DELETE of a cyclic subscription with 100 and with 900 held, beside ``/version-info`` |
 | service call | ``POST …/operations/calibrate/executions`` (the demo's ``std_srvs/Trigger``), 1 connection, against a bare rclpy client (``bench/operations.py``) |
+| auth | ``bench/auth.py``: the warm sample through a gateway with ``--auth-enabled --require-auth-for all`` (a JWT on every request) against the same read without authentication, alternating rounds |
+| write checks | ``bench/auth.py``: ``PUT`` of the demo's lights command with the lock check (a lock held on another app) and the audit record, against a gateway with neither |
 | fleet | ``bench/fleet.py``: ``GET /faults`` on the fleet gateway over 500 simulated robots (``bench/fleetsim.py``) against a robot's own, one of them hung; a fault to the fleet's stream; the fleet gateway's memory; a robot's idle CPU with the fleet link on against off |
 
 Floor, warm sample and echo route are measured in alternating rounds (floor
@@ -236,6 +238,10 @@ class Bench:
         # fleet (issue 34): the fleet gateway over 500 simulated robots; a robot's cost of the link
         from . import fleet as fleet_bench
         cases["fleet"] = lambda: fleet_bench.case(self)
+        # who is acting (issue 31): a JWT checked on every warm sample; a write's lock check and audit record
+        from . import auth as auth_bench
+        cases["auth"] = lambda: auth_bench.case_auth(self)
+        cases["write_checks"] = lambda: auth_bench.case_write(self)
         only = set(self.args.only.split(",")) if self.args.only else set(cases)
         if "old" in only:
             only.add("warm")  # the old design is compared with the warm sample

@@ -52,6 +52,7 @@ SECTIONS: dict[str, str | None] = {
     "details": None,
     "operations": "x-medkit-operations",   # operations: services and actions
     "logs": "x-medkit-logs",  # logs: /rosout's ring buffers (issue 22)
+    "locks": "x-medkit-locks",  # SOVD locks (issue 31)
 }
 # The fleet link's sections (issue 34, supervisor/fleet/stats.py): its /health section, and the fleet
 # gateway's per-robot counts, only in /metrics.  Not in the ROS worker's answer.
@@ -287,6 +288,16 @@ COUNTERS: tuple[Counter, ...] = (
       "sovd_fleet_robot_failures", label="robot", origin=FLEET),
     C("fleet_robots", "robot_events", BY, "Fault events taken from the robot", "sovd_fleet_robot_events",
       label="robot", origin=FLEET),
+)
+# ---- x-medkit-locks: SOVD locks (issue 31; rosworker/locks/, the write check in app/locks/) ----
+COUNTERS += (
+    C("locks", "locks_held", GAUGE, "Locks held now", "sovd_ros_locks_held"),
+    C("locks", "locks_acquired", COUNTER, "Locks acquired (break_lock included)", "sovd_ros_locks_acquired"),
+    C("locks", "locks_released", COUNTER, "Locks released by their owners", "sovd_ros_locks_released"),
+    C("locks", "locks_broken", COUNTER, "Locks taken over by another client with break_lock", "sovd_ros_locks_broken"),
+    C("locks", "locks_expired", COUNTER, "Locks that ran out", "sovd_ros_locks_expired"),
+    C("locks", "lock_refusals", COUNTER, "Writes refused 409 because another client's lock covers them",
+      "sovd_http_lock_refusals", origin=HTTP),
 )
 del C
 

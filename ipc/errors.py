@@ -58,6 +58,7 @@ CODES: frozenset[str] = frozenset({
     # triggers (rosworker/triggers.py)
     "no-such-trigger",
     "triggers-full",
+    "lock-conflict", "lock-not-found", "lock-not-owner", "locks-full",  # locks (rosworker/locks/)
 })
 
 

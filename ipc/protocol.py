@@ -46,6 +46,8 @@ COMMANDS = (
 )
 # Triggers (rosworker/triggers.py).
 COMMANDS += ("trig_create", "trig_list", "trig_get", "trig_update", "trig_delete", "trig_open")
+# Locks (rosworker/locks/).
+COMMANDS += ("lock_acquire", "lock_extend", "lock_release", "lock_list")
 # Commands answered from counters by the control thread, without queueing behind ROS work;
 # clients send them to the control socket.
 IMMEDIATE = ("ping", "stats")
@@ -56,6 +58,7 @@ WRITES = frozenset({
     "publish", "op_call", "op_goal", "op_cancel", "param_set", "param_reset", "param_reset_all",
     "fault_clear", "log_config_set", "sub_create", "sub_update", "sub_delete",
     "trig_create", "trig_update", "trig_delete",
+    "lock_acquire", "lock_extend", "lock_release",
 })
 
 

@@ -44,6 +44,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from common.statedir import make_private_dir, private_files
+
 log = logging.getLogger("sovd.rosworker.faultstore")
 
 FILE_NAME = "faults.db"
@@ -51,8 +53,6 @@ MAX_EVENTS = 1000          # events kept for Last-Event-ID replay
 RETRY_AFTER = 1.0          # seconds before a failed write is tried again
 BUSY_TIMEOUT = 5.0         # seconds sqlite waits for a lock (only this process writes)
 
-FILE_MODE = 0o600         # the store's files: the service user's alone
-DIR_MODE = 0o700          # a state directory the gateway makes
 _SCHEMA = (
     "CREATE TABLE IF NOT EXISTS faults (code TEXT PRIMARY KEY, doc TEXT NOT NULL, updated_ns INTEGER NOT NULL)",
     "CREATE TABLE IF NOT EXISTS events (id INTEGER PRIMARY KEY, doc TEXT NOT NULL)",
@@ -324,23 +324,3 @@ class FaultStore:
             except sqlite3.Error:
                 pass
             raise
-
-
-def make_private_dir(path: str) -> None:
-    """``path`` made 0700 if it is not there (its parents as the umask says); one that is stays as it is."""
-    if not os.path.isdir(path):
-        os.makedirs(path, exist_ok=True)
-        os.chmod(path, DIR_MODE)
-
-
-def private_files(path: str) -> None:
-    """The database file made 0600 before SQLite opens it (SQLite gives its -wal and -shm the file's
-    mode), and an existing file, -wal or -shm of a looser mode narrowed to 0600."""
-    fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, FILE_MODE)
-    os.close(fd)
-    for name in (path, path + "-wal", path + "-shm"):
-        try:
-            if os.stat(name).st_mode & 0o777 != FILE_MODE:
-                os.chmod(name, FILE_MODE)
-        except FileNotFoundError:
-            pass

