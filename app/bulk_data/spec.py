@@ -78,9 +78,11 @@ def paths() -> dict[str, Any]:
     not_found = ("404", "Unknown entity (`entity-not-found`), category (`resource-not-found`, `Unknown "
                         "category`) or file (`resource-not-found`, `Bulk-data not found`): a recording none of "
                         "whose faults belongs to the entity is not found there")
-    download_ok = {"description": "The file (206: the range asked)",
+    download_ok = {"description": "The whole file",
                    "headers": {k: {"schema": STR, "description": v} for k, v in _RANGE_HEADERS.items()},
-                   "content": {"application/octet-stream": {"schema": {**STR, "format": "binary"}}}}
+                   "content": {"application/octet-stream": {"schema": {
+                       **STR, "format": "binary", "description": "the file's bytes; Content-Type says its type: "
+                       "application/x-mcap for a recording, an upload's own"}}}}
     token = {"security": [{"bearerAuth": []}, {}]}
     write_errors = (
         ("400", "Invalid entity ID; `rosbags` (read-only), an unknown category or a bad id (`invalid-parameter`); "
@@ -106,6 +108,8 @@ def paths() -> dict[str, Any]:
                                             "description": "`bytes=<first>-[<last>]` or `bytes=-<n>`"},
                                            {"name": "If-Range", "in": "header", "required": False,
                                             "schema": STR, "description": "the ETag it had"}])
+        download["responses"] = {"200": download_ok, "206": {**download_ok, "description": "The range asked "
+                                                                  "(`Content-Range`)"}, **download["responses"]}
         out[base + "/{category_id}/{file_id}"] = {"get": download}
         if collection in WRITABLE:
             upload = op(f"upload{name}BulkData", TAG, "Upload a file (multipart/form-data: file, description, "

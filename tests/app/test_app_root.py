@@ -42,10 +42,10 @@ def test_root_says_what_is_not_served(client):
     """The capabilities say what answers 501 (app/routes/unimplemented.py) and what is not there yet."""
     body = client.get("/api/v1/").get_json()
     caps = body["capabilities"]
-    for name in ("bulk_data", "locking", "scripts", "lifecycle", "updates"):
+    for name in ("locking", "scripts", "lifecycle", "updates", "bulk_data_writes"):
         assert caps[name] is False, name
     for name in ("cyclic_subscriptions", "docs", "operations", "async_actions", "configurations", "faults",
-                 "logs", "triggers"):
+                 "logs", "triggers", "bulk_data"):  # bulk data: issue 32 (app/bulk_data/)
         assert caps[name] is True, name
     assert "GET /api/v1/updates" in body["endpoints"]
     assert "POST /api/v1/apps/{app_id}/locks" in body["endpoints"]
@@ -183,7 +183,12 @@ def test_entity_docs_fill_in_the_entity(client):
         "/components/test-robot/operations", "/components/test-robot/operations/{operation_id}",
         "/components/test-robot/operations/{operation_id}/executions",
         "/components/test-robot/operations/{operation_id}/executions/{execution_id}",
-        "/components/test-robot/faults", "/components/test-robot/faults/{fault_code}"]  # faults (issue 22)
+        "/components/test-robot/faults", "/components/test-robot/faults/{fault_code}",  # faults (issue 22)
+        "/components/test-robot/bulk-data", "/components/test-robot/bulk-data/{category_id}",  # issue 32
+        "/components/test-robot/bulk-data/{category_id}/{file_id}",
+        "/components/test-robot/subcomponents/{subcomponent_id}/bulk-data",
+        "/components/test-robot/subcomponents/{subcomponent_id}/bulk-data/{category_id}",
+        "/components/test-robot/subcomponents/{subcomponent_id}/bulk-data/{category_id}/{file_id}"]
     assert "/components/test-robot/locks/{lock_id}" in doc["paths"]
     get = doc["paths"]["/components/test-robot/hosts"]["get"]
     assert get["operationId"] == "listComponentHosts" and "parameters" not in get
