@@ -172,7 +172,7 @@ class FileStore:
             return False
         trash = os.path.join(self.root, TRASH, secrets.token_hex(8))
         try:
-            os.makedirs(os.path.dirname(trash), mode=0o700, exist_ok=True)
+            _private_dirs(os.path.dirname(trash))
             os.rename(folder, trash)
         except FileNotFoundError:
             return False  # deleted by another request meanwhile
@@ -186,7 +186,7 @@ class FileStore:
         self._sweep()
         staging = os.path.join(self.root, INCOMING, secrets.token_hex(8))
         try:
-            os.makedirs(staging, mode=0o700)
+            _private_dirs(staging)
         except OSError as exc:
             raise _storage_error("stored", exc) from None
         try:
@@ -194,7 +194,7 @@ class FileStore:
             if self.usage() + desc["size"] > self.max_total:
                 raise storage_full(self.max_total)
             final = self._dir(collection, entity_id, category, desc["id"])
-            os.makedirs(os.path.dirname(final), mode=0o700, exist_ok=True)
+            _private_dirs(os.path.dirname(final))
             os.rename(staging, final)
             _fsync_dir(os.path.dirname(final))
         except BaseException:
@@ -343,6 +343,19 @@ def _metadata(raw: bytearray | None) -> dict[str, Any]:
     if not isinstance(value, dict):
         raise ApiError(400, "invalid-parameter", "metadata must be a JSON object")
     return value
+
+
+def _private_dirs(path: str) -> None:
+    """``os.makedirs`` with every directory it makes 0700 (makedirs gives the parents the umask's mode)."""
+    missing = []
+    while not os.path.isdir(path):
+        missing.append(path)
+        path = os.path.dirname(path)
+    for folder in reversed(missing):
+        try:
+            os.mkdir(folder, 0o700)
+        except FileExistsError:
+            pass
 
 
 def _write_all(fd: int, data: bytes) -> None:
