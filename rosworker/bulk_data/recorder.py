@@ -149,15 +149,14 @@ class Recording:
     """One recording: its faults, and its messages (those of the ring, then those that come after)."""
 
     def __init__(self, recording_id: str, code: str, sources: list[str], created_ns: int,
-                 items: list, cap_bytes: int):
+                 items: list, cap_bytes: int, nbytes: int = 0):
         self.id = recording_id
         self.codes = [code]
         self.sources: dict[str, list[str]] = {code: list(sources)}
         self.created_ns = created_ns
-        self.started_ns = min(i[0] for i in items) if items else created_ns
         self.ended_ns = created_ns
-        self.items = items
-        self.nbytes = sum(len(i[3]) + ENTRY_OVERHEAD for i in items)
+        self.items = items          # in the order taken: each topic's in receive order (the writer merges them)
+        self.nbytes = nbytes        # the ring's count (nothing is walked on the ROS thread)
         self.cap_bytes = cap_bytes
 
     def add(self, item, stats) -> bool:
@@ -170,10 +169,6 @@ class Recording:
         self.nbytes += size
         return True
 
-    @property
-    def duration_sec(self) -> float:
-        """The span the recording covers: from its oldest message (or its opening) to its close."""
-        return max(0.0, (self.ended_ns - self.started_ns) / 1e9)
 
 
 class Recorder:
@@ -340,6 +335,7 @@ class Recorder:
             active.sources[code] = list(sources)
             return
         self.drain()  # what came up to the confirmation belongs to the history
+        nbytes = self.ring.nbytes
         items = self.ring.take()
         if not items and self.after_s <= 0:
             log.warning("no message of the recorded topics buffered for fault %s and no time after it "
@@ -347,7 +343,7 @@ class Recorder:
             return
         now = time.time_ns()
         recording = Recording(f"fault_{code[:ID_CODE_CHARS]}_{now // 1_000_000}", code, sources, now, items,
-                              self.cap_bytes)
+                              self.cap_bytes, nbytes)
         if not items:
             log.info("no pre-fault data buffered for fault %s: recording the %g s after it only", code,
                      self.after_s)

@@ -2,7 +2,10 @@
 
 A closed recording (``recorder.Recording``) is handed to one writer thread (never the
 ROS thread, which only queues it: at most ``QUEUE`` wait; past that a recording is
-refused and counted).  The thread writes it as MCAP with the ROS 2 profile, with the
+refused and counted).  The writer is pure Python work under the GIL: it hands the GIL
+over every ``YIELD_EVERY`` messages and merges the topics' messages in Python steps
+rather than sorting them in one C call, so a warm sample on the ROS thread waits for
+it at most a few messages' worth.  The thread writes it as MCAP with the ROS 2 profile, with the
 ``mcap`` package: ``ros2msg`` schemas carrying each type's complete message definition
 (``msgdefs.py``, as rosbag2 writes them), ``cdr`` message encoding, zstd-compressed
 chunks, the messages in receive-time order with their receive time as ``log_time`` and
@@ -32,6 +35,7 @@ The index is read by the ROS thread's commands under a lock held only to copy it
 from __future__ import annotations
 
 import errno
+import heapq
 import json
 import logging
 import operator
@@ -55,6 +59,7 @@ FORMAT = "mcap"
 QUEUE = 2                 # closed recordings waiting for the writer, at most
 MAX_RECORDINGS = 1000     # recordings kept, at most (the oldest go first)
 CHUNK_SIZE = 1 << 20      # bytes of messages per compressed chunk
+YIELD_EVERY = 64          # messages written between two hand-overs of the GIL to the ROS thread
 ERROR_LOG_EVERY = 60.0    # seconds between two logged write failures of the same kind
 
 
@@ -148,13 +153,14 @@ class RecordingStore:
         recording_id = self._free_id(recording.id)
         final = os.path.join(self.directory, recording_id + SUFFIX)
         tmp = os.path.join(self.directory, "." + recording_id + TMP_SUFFIX)
-        items = sorted(recording.items, key=operator.itemgetter(0))
+        items = merged(recording.items)
         topics = sorted({channel for _, _, channel, _ in items})
+        started = min(recording.created_ns, items[0][0]) if items else recording.created_ns
         meta = {
             "id": recording_id, "format": FORMAT, "all_codes": list(recording.codes),
             "sources": {code: list(s) for code, s in recording.sources.items()},
-            "created_ns": recording.created_ns, "started_ns": recording.started_ns,
-            "ended_ns": recording.ended_ns, "duration_sec": round(recording.duration_sec, 3),
+            "created_ns": recording.created_ns, "started_ns": started, "ended_ns": recording.ended_ns,
+            "duration_sec": round(max(0.0, (recording.ended_ns - started) / 1e9), 3),
             "topics": [{"topic": t, "type": ty} for t, ty in topics], "messages": len(items),
         }
         started = time.monotonic()
@@ -205,6 +211,8 @@ class RecordingStore:
             writer.add_message(channel_id=channels[channel], log_time=received, publish_time=published,
                                sequence=sequence & 0xFFFFFFFF, data=raw)
             first.setdefault(channel, raw)
+            if not sequence % YIELD_EVERY:
+                time.sleep(0)  # the GIL to the ROS thread now, not at the interpreter's next switch
             if sequence == pause_after:
                 fh.flush()
                 time.sleep(self.pause_s)
@@ -314,6 +322,18 @@ class RecordingStore:
         with self._lock:
             metas = [m for m in self._index.values() if code in m["fault_codes"]]
             return [public(m) for m in sorted(metas, key=lambda m: m["created_ns"], reverse=True)]
+
+
+def merged(items: list) -> list:
+    """The messages in receive-time order.  Each topic's are in order already (taken in turn from its
+    queue), so they are merged, in Python steps the interpreter can switch between: one C-level sort
+    of a large recording would hold the GIL, and so the ROS thread, for its whole length."""
+    by_channel: dict[tuple[str, str], list] = {}
+    for n, item in enumerate(items):
+        by_channel.setdefault(item[2], []).append(item)
+        if not n % (YIELD_EVERY * 16):
+            time.sleep(0)
+    return list(heapq.merge(*by_channel.values(), key=operator.itemgetter(0)))
 
 
 def public(meta: dict[str, Any]) -> dict[str, Any]:
