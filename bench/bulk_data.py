@@ -29,7 +29,7 @@ import requests
 from bench.diagpub import DiagPub
 from bench.procs import measure_cpu, robot
 from tests.support.gateway import Gateway
-from tests.support.procs import poll_until, private_ros_domain
+from tests.support.procs import Proc, free_port, poll_until, private_ros_domain
 
 TOPICS = [f"/bench/rec/t{i}" for i in range(10)]
 IMAGE = "/bench/rec/image"
@@ -164,9 +164,32 @@ def _curl(url: str) -> float:
     return float(out[0]) / float(out[1])
 
 
-def measure_download(p: dict, log_dir: str) -> dict[str, Any]:
-    from tests.system.test_nginx import Nginx
+def _nginx(root: str, work: Path) -> tuple[Proc, str]:
+    """nginx serving ``root`` at ``/rosbags/`` with sendfile (its usual static-file setting); (process, URL)."""
+    binary = shutil.which("nginx") or "/usr/sbin/nginx"
+    port = free_port()
+    for d in ("logs", "client_body", "proxy", "fastcgi", "uwsgi", "scgi"):
+        (work / d).mkdir(parents=True, exist_ok=True)
+    user = "user root;\n" if os.geteuid() == 0 else ""
+    (work / "nginx.conf").write_text(f"""{user}worker_processes 1;
+events {{ worker_connections 64; }}
+http {{
+    default_type application/octet-stream;
+    access_log off;
+    client_body_temp_path {work}/client_body; proxy_temp_path {work}/proxy; fastcgi_temp_path {work}/fastcgi;
+    uwsgi_temp_path {work}/uwsgi; scgi_temp_path {work}/scgi;
+    server {{ listen 127.0.0.1:{port}; sendfile on; tcp_nopush on;
+        location /rosbags/ {{ alias {root}/; }} }}
+}}
+""")
+    proc = Proc([binary, "-p", str(work), "-c", str(work / "nginx.conf"), "-e", str(work / "logs" / "error.log"),
+                 "-g", f"daemon off; pid {work}/nginx.pid;"], name="nginx")
+    url = f"http://127.0.0.1:{port}/rosbags/"
+    poll_until(lambda: requests.get(url, timeout=2).status_code in (403, 404), 20, message="nginx listening")
+    return proc, url
 
+
+def measure_download(p: dict, log_dir: str) -> dict[str, Any]:
     state = tempfile.mkdtemp(prefix="bench-bulk-")
     pub = robot(PUBLISHER_NODE, [{"prefix": "/bench/rec/t", "count": 1, "rate": 1, "kind": "small"}])
     gw = nginx = None
@@ -175,16 +198,9 @@ def measure_download(p: dict, log_dir: str) -> dict[str, Any]:
         meta = write_recording(os.path.join(state, "rosbags"), p["download_mb"], f"/{PUBLISHER_NODE}")
         gw = _gateway(log_dir, "download", "--state-dir", state)
         poll_until(lambda: gw.get(f"/apps/{PUBLISHER_NODE}").status_code == 200, 30, message="the publisher")
-        served = os.path.dirname(meta["path"])
-
-        def site(_upstream: int, listen: int) -> str:
-            return (f"server {{ listen 127.0.0.1:{listen}; sendfile on; tcp_nopush on;\n"
-                    f"  location = /health {{ return 200 'ok'; }}\n"
-                    f"  location /rosbags/ {{ alias {served}/; }}\n}}\n")
-
-        nginx = Nginx(gw.port, Path(tempfile.mkdtemp(prefix="bench-nginx-")), site=site, health="/health")
+        nginx, base = _nginx(os.path.dirname(meta["path"]), Path(tempfile.mkdtemp(prefix="bench-nginx-")))
         urls = {"gateway": f"{gw.api}/apps/{PUBLISHER_NODE}/bulk-data/rosbags/{meta['id']}",
-                "nginx": f"{nginx.url}/rosbags/{meta['id']}.mcap"}
+                "nginx": f"{base}{meta['id']}.mcap"}
         for name, url in urls.items():  # both serve the same bytes
             assert int(requests.head(url, timeout=10).headers["Content-Length"]) == meta["size"], name
         for _ in range(p["download_rounds"]):

@@ -290,7 +290,8 @@ def test_routes_not_served_here_are_501_not_404(gw):
                                 "message": unimplemented.FEATURES[route.feature].message,
                                 "parameters": {"feature": route.feature}}, concrete
     caps = gw.get("/").json()["capabilities"]
-    assert [name for name in ("bulk_data", "locking", "scripts", "lifecycle", "updates") if caps[name]] == []
+    assert [name for name in ("locking", "scripts", "lifecycle", "updates") if caps[name]] == []
+    assert caps["bulk_data"] is True  # served (issue 32, app/bulk_data/)
     r = gw.get("/apps/temp_sensor/no-such-collection")
     assert r.status_code == 404 and r.json()["error_code"] == "resource-not-found"
     r = requests.post(gw.api + "/areas/nope/bulk-data/x1", timeout=15)

@@ -103,6 +103,8 @@ def test_a_confirmed_fault_gets_a_recording_of_what_led_up_to_it(gw, robot, faul
     assert rec["mimetype"] == "application/x-mcap" and rec["x-medkit"]["fault_codes"] == ["MOTOR_OVERHEAT"]
     assert rec["id"] == rec["x-medkit"]["recording_id"] and rec["id"].startswith("fault_MOTOR_OVERHEAT_")
     assert sorted(rec["x-medkit"]["topics"]) == sorted([robot["temp"], robot["cmd"]])
+    # the span it covers: the window before the fault, then duration_after_s after it
+    assert rec["x-medkit"]["duration_sec"] >= DURATION_S + AFTER_S - 0.3, rec
     confirmed = _ms(rec["creation_date"])
 
     # The fault's detail lists it as medkit's rosbag snapshot, under the entity asked.
@@ -138,7 +140,7 @@ def test_a_confirmed_fault_gets_a_recording_of_what_led_up_to_it(gw, robot, faul
         assert received == sorted(received)
         # duration_s before the confirmation (the window is by receive time), and duration_after_s after it
         assert confirmed - DURATION_S - 0.3 <= received[0] <= confirmed - DURATION_S + 0.5, (received[0], confirmed)
-        assert received[-1] >= confirmed + AFTER_S - 0.3
+        assert received[-1] > confirmed  # what came after it too (a loaded machine may delay the publishers)
         assert all(0 < p <= t + 1e8 for t, p, _ in messages)  # publish time: the publisher's source time
         assert len(messages) >= RATE_HZ * (DURATION_S + AFTER_S) * 0.7
 
