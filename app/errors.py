@@ -65,6 +65,7 @@ IPC_ANSWERS: dict[str, tuple[int, str, str | None, int | None]] = {
     "parameter-failed": (500, "internal-error", None, None),
     # faults (app/routes/faults.py)
     "no-such-fault": (404, "resource-not-found", None, None),
+    "no-such-recording": (404, "resource-not-found", None, None),  # bulk data (rosworker/bulk_data/)
     # triggers (app/routes/triggers.py)
     "no-such-trigger": (404, "resource-not-found", None, None),
     "triggers-full": (503, "service-unavailable", None, 5),

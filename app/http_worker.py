@@ -111,6 +111,10 @@ class HttpWorker(GeventWorker):
 
     def run(self):
         self._loop = gevent.get_hub().loop
+        # bulk-data downloads: zero-copy, never blocking the loop (app/bulk_data/sendfile.py)
+        from .bulk_data import sendfile
+
+        sendfile.install()
         stop = stopping()
         servers = []
         # TLS (tls_cert, tls_key): gunicorn's context (app/gunicorn_conf.py's ssl_context), as its own

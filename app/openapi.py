@@ -23,6 +23,7 @@ from typing import Any
 
 from ipc import counters
 
+from .bulk_data import spec as bulk_data_spec
 from .entities import API_BASE, COLLECTIONS, KINDS, PARAM_NAMES, RELATIONS
 from .routes import unimplemented
 
@@ -909,13 +910,22 @@ SCHEMAS.update({
             extended_data_records=_obj(["first_occurrence", "last_occurrence"],
                                        first_occurrence={**STR, "format": "date-time"},
                                        last_occurrence={**STR, "format": "date-time"}),
-            snapshots={"type": "array", "maxItems": 8, "items": _obj(
-                ["type", "name", "data", "x-medkit"], type={"const": "freeze_frame"}, name=STR,
-                data={"description": "the status's values (name: value), or a topic's message (its primary "
-                                     "field for the common std_msgs/sensor_msgs types)"},
-                X_medkit=_obj(["topic", "message_type"], topic=STR, message_type=STR, full_data={},
-                              captured_at={**STR, "format": "date-time"}, parse_error=STR,
-                              truncated_bytes=INT, error=STR))}),
+            snapshots={"type": "array", "description": "at most 8 freeze frames, then the fault's recordings "
+                                                       "(newest first, fault_rosbag_max_bags_per_fault)",
+                       "items": {"oneOf": [_obj(
+                           ["type", "name", "data", "x-medkit"], type={"const": "freeze_frame"}, name=STR,
+                           data={"description": "the status's values (name: value), or a topic's message (its "
+                                                "primary field for the common std_msgs/sensor_msgs types)"},
+                           X_medkit=_obj(["topic", "message_type"], topic=STR, message_type=STR, full_data={},
+                                         captured_at={**STR, "format": "date-time"}, parse_error=STR,
+                                         truncated_bytes=INT, error=STR)),
+                           _obj(["type", "name", "bulk_data_uri", "size_bytes", "duration_sec", "format"],
+                                type={"const": "rosbag"}, name=STR,
+                                bulk_data_uri={**STR, "description": "the recording under the entity asked "
+                                                                     "(`/apps/x/bulk-data/rosbags/<id>`, no API base)"},
+                                size_bytes=INT, duration_sec={"type": "number"}, format={"const": "mcap"},
+                                X_medkit=_obj([], captured_at={**STR, "format": "date-time"}, topics=STR_LIST,
+                                              messages=INT))]}}),
         X_medkit=_obj(["occurrence_count", "severity_label", "status_raw"], occurrence_count=INT,
                       reporting_sources=STR_LIST, severity_label={"enum": ["INFO", "WARN", "ERROR", "CRITICAL"]},
                       status_raw=FAULT_STATUS)),
@@ -934,6 +944,10 @@ SCHEMAS["HealthStatus"]["properties"]["x-medkit-faults"] = {
            absent_nodes={**STR_LIST, "description": "the reporting nodes of those faults (at most 16)"}),
     "description": "the fault manager (rosworker/faults.py) and its SQLite store; zeros before the ROS worker "
                    "first answers"}
+# bulk data (issue 32): its schemas and /health section (app/bulk_data/spec.py)
+SCHEMAS.update(bulk_data_spec.schemas())
+SCHEMAS["HealthStatus"]["required"].append("x-medkit-bulk-data")
+SCHEMAS["HealthStatus"]["properties"]["x-medkit-bulk-data"] = bulk_data_spec.health_schema()
 _FAULT_QUERY = {"name": "status", "in": "query", "required": False,
                 "schema": {"enum": ["pending", "confirmed", "cleared", "healed", "all"]},
                 "description": "pending (PREFAILED), confirmed, healed (HEALED, PREPASSED), cleared (CLEARED "
@@ -1035,6 +1049,7 @@ def _document() -> dict[str, Any]:
         paths.update(_operation_paths(collection))
     for collection in (None, "apps", "components", "functions"):  # faults (issue 22)
         paths.update(_fault_paths(collection))
+    paths.update(bulk_data_spec.paths())  # bulk data (issue 32, app/bulk_data/spec.py)
     # who is acting (issue 31): the families' own parts (app/auth/doc.py, app/locks/doc.py, app/audit/doc.py),
     # then what the token, role and lock checks add to every operation
     from .audit import doc as audit_doc
@@ -1068,6 +1083,7 @@ def _document() -> dict[str, Any]:
                  {"name": "Logs", "description": "The robot's /rosout, per entity (issue 22)"},
                  {"name": "Triggers", "description": "Condition triggers: events over SSE"},
                  {"name": "Faults", "description": "The robot's /diagnostics as SOVD faults (issue 22)"},
+                 {"name": bulk_data_spec.TAG, "description": bulk_data_spec.TAG_DESCRIPTION},
                  *({"name": f.tag, "description": LIFECYCLE_TAG if f.tag == "Lifecycle"
                     else f"Not implemented: 501 ({f.message})"}
                    for f in unimplemented.FEATURES.values()),

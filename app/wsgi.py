@@ -87,6 +87,9 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
 
     triggerstreams.init_app(app)
     app.register_blueprint(triggers.bp)
+    from . import bulk_data  # bulk data (issue 32): medkit's /bulk-data routes (app/bulk_data/)
+
+    bulk_data.init_app(app)
     if cfg.debug_commands:  # test and bench routes; never in production
         from .routes import debug
 

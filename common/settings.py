@@ -112,6 +112,8 @@ def _coerce(kind: type, raw: Any) -> Any:
         return value
     if isinstance(raw, list) and all(isinstance(item, str) for item in raw):
         return ",".join(raw)  # a TOML array of strings, as medkit's string[] (auth_clients)
+    if isinstance(raw, list):  # a TOML list for a comma-separated setting (topics, categories)
+        return ",".join(str(item) for item in raw)
     return str(raw)
 
 
@@ -263,6 +265,34 @@ SETTINGS: tuple[Setting, ...] = (
             "announced no change (it announces changes itself)", 1, 86400),
     Setting("fleet_forget_after", float, 86400.0, "seconds a disconnected robot's tree stays in the fleet "
             "view, marked unavailable", 1, 31536000, "never"),
+    # --- bulk data (issue 32): fault recordings (rosworker/bulk_data/) and medkit's bulk-data routes
+    #     (app/bulk_data/); medkit's snapshots.rosbag.* and bulk_data.* flattened ---
+    Setting("fault_rosbag_enabled", bool, False, "record fault_rosbag_topics in a ring buffer and write what "
+            "led up to each confirmed fault as an MCAP file (medkit's snapshots.rosbag.enabled)"),
+    Setting("fault_rosbag_topics", str, "", "topics recorded, comma-separated (or a TOML list); none: "
+            "nothing is subscribed"),
+    Setting("fault_rosbag_duration_s", float, 5.0, "seconds of messages kept before a fault", 0.1, 3600),
+    Setting("fault_rosbag_duration_after_s", float, 1.0, "seconds recorded after a fault is confirmed",
+            0, 600),
+    Setting("fault_rosbag_format", str, "mcap", "recording format: mcap (sqlite3, rosbag2's other format, is "
+            "not written by this gateway)"),
+    Setting("fault_rosbag_storage_path", str, "", "directory of the recordings (default: <state_dir>/rosbags)"),
+    Setting("fault_rosbag_max_buffer_mb", int, 256, "MB of messages the ring buffer (and an open recording) "
+            "holds; past it the oldest are dropped and counted", 1, 65536),
+    Setting("fault_rosbag_max_total_mb", int, 500, "MB of recordings on disk; the oldest are deleted first",
+            1, 10_000_000),
+    Setting("fault_rosbag_max_bags_per_fault", int, 1, "recordings kept per fault code (the newest)",
+            1, 10000, "no cap"),
+    Setting("bulk_data_storage_dir", str, "", "directory of the uploaded bulk-data files (default: "
+            "<state_dir>/bulk_data)"),
+    Setting("bulk_data_max_upload_size", int, 100 * 2**20, "largest bulk-data upload in bytes (413 past it)",
+            1, 2**40),
+    Setting("bulk_data_max_total_mb", int, 1024, "MB of uploaded bulk-data files in all (507 past it)",
+            1, 10_000_000),
+    Setting("bulk_data_categories", str, "", "bulk-data categories of uploaded files, comma-separated (e.g. "
+            "calibration,firmware); rosbags is always there"),
+    Setting("allow_bulk_data", bool, False, "allow POST and DELETE on .../bulk-data (uploading and deleting "
+            "files of the bulk_data_categories)"),
 )
 
 BY_NAME = {s.name: s for s in SETTINGS}
@@ -397,6 +427,7 @@ def load(args: argparse.Namespace | None = None, environ: dict[str, str] | None 
         parse_rate(values[name], named(name))
     _check_identity(values, named)
     parse_origins(values["cors_origins"], named("cors_origins"))
+    check_bulk_data(values, named)
     cfg = Config(values)
     cfg.ignored = tuple(ignored)
     return cfg
@@ -465,6 +496,48 @@ def _check_identity(values: dict[str, Any], named: Any) -> None:
         path = values[key]
         if path and (not os.path.isfile(path) or not os.access(path, os.R_OK)):
             raise ConfigError(f"{named(key)}: {path!r} is not a readable file")
+
+
+# ---- bulk data (issue 32) ---------------------------------------------------------------------------
+ROSBAGS = "rosbags"  # the recordings' category: always there, read-only
+_CATEGORY = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
+_TOPIC_NAME = re.compile(r"^/[A-Za-z0-9_~{}/]*$")
+
+
+def names(text: str) -> list[str]:
+    """A comma-separated setting's items (topics, categories), stripped, empty ones left out, each once."""
+    return list(dict.fromkeys(item.strip() for item in text.split(",") if item.strip()))
+
+
+def check_bulk_data(values: dict[str, Any], named=lambda name: name) -> None:
+    if values["fault_rosbag_format"] != "mcap":
+        fmt = values["fault_rosbag_format"]
+        raise ConfigError(f"{named('fault_rosbag_format')}: {fmt!r} is not written by this gateway: "
+                          + ("sqlite3 (rosbag2's db3) needs rosbag2's C++ storage plugin; " if fmt == "sqlite3" else "")
+                          + "use mcap, which ros2 bag, Foxglove and medkit's clients read")
+    for topic in names(values["fault_rosbag_topics"]):
+        if not _TOPIC_NAME.match(topic) or "//" in topic or (len(topic) > 1 and topic.endswith("/")):
+            raise ConfigError(f"{named('fault_rosbag_topics')}: {topic!r} is not a topic name "
+                              "(absolute: /robot/odom)")
+    for category in names(values["bulk_data_categories"]):
+        if category == ROSBAGS or not _CATEGORY.match(category):
+            raise ConfigError(f"{named('bulk_data_categories')}: {category!r} cannot be a category (1-64 "
+                              "letters, digits, _ and -, starting with a letter or digit; not rosbags, "
+                              "which is the fault recordings')")
+
+
+def rosbag_dir(cfg: dict[str, Any], environ=os.environ) -> str:
+    """Where the fault recordings are: ``fault_rosbag_storage_path``, else ``<state_dir>/rosbags``."""
+    return cfg["fault_rosbag_storage_path"] or os.path.join(cfg["state_dir"] or default_state_dir(environ),
+                                                            ROSBAGS)
+
+
+def bulk_data_dir(cfg: dict[str, Any], environ=os.environ) -> str:
+    """Where uploaded bulk-data files are: ``bulk_data_storage_dir``, else ``<state_dir>/bulk_data``."""
+    return cfg["bulk_data_storage_dir"] or os.path.join(cfg["state_dir"] or default_state_dir(environ),
+                                                        "bulk_data")
+
+
 # ---- the fleet (issue 34) -------------------------------------------------------------------------
 FLEET_ID_MAX = 64
 # An entity id's characters, no "__" (medkit's rename separator) and no leading or trailing "_".

@@ -53,6 +53,7 @@ SECTIONS: dict[str, str | None] = {
     "operations": "x-medkit-operations",   # operations: services and actions
     "logs": "x-medkit-logs",  # logs: /rosout's ring buffers (issue 22)
     "locks": "x-medkit-locks",  # SOVD locks (issue 31)
+    "bulk_data": "x-medkit-bulk-data",  # fault recordings (issue 32, rosworker/bulk_data/)
 }
 # The fleet link's sections (issue 34, supervisor/fleet/stats.py): its /health section, and the fleet
 # gateway's per-robot counts, only in /metrics.  Not in the ROS worker's answer.
@@ -288,6 +289,38 @@ COUNTERS: tuple[Counter, ...] = (
       "sovd_fleet_robot_failures", label="robot", origin=FLEET),
     C("fleet_robots", "robot_events", BY, "Fault events taken from the robot", "sovd_fleet_robot_events",
       label="robot", origin=FLEET),
+    # ---- x-medkit-bulk-data: fault recordings (issue 32; rosworker/bulk_data/) ----
+    C("bulk_data", "rosbag_topics_configured", GAUGE, "Topics fault_rosbag_topics names (0: nothing recorded)",
+      "sovd_ros_rosbag_topics_configured"),
+    C("bulk_data", "rosbag_topics_recorded", GAUGE, "Recorded topics subscribed now (their publishers were "
+      "found and their type is installed)", "sovd_ros_rosbag_topics_recorded"),
+    C("bulk_data", "rosbag_messages", COUNTER, "Messages of the recorded topics taken", "sovd_ros_rosbag_messages"),
+    C("bulk_data", "rosbag_buffer_bytes", GAUGE, "Bytes of messages in the ring buffer now",
+      "sovd_ros_rosbag_buffer_bytes"),
+    C("bulk_data", "rosbag_buffer_messages", GAUGE, "Messages in the ring buffer now",
+      "sovd_ros_rosbag_buffer_messages"),
+    C("bulk_data", "rosbag_buffer_cap_mb", GAUGE, "MB the ring buffer holds at most (fault_rosbag_max_buffer_mb)",
+      "sovd_ros_rosbag_buffer_cap_mb", setting="fault_rosbag_max_buffer_mb"),
+    C("bulk_data", "rosbag_buffer_drops", COUNTER, "Messages dropped for the buffer's byte cap (the oldest go "
+      "first; in an open recording, the newest)", "sovd_ros_rosbag_buffer_drops"),
+    C("bulk_data", "rosbag_recording_active", FLAG, "1 while a recording takes the messages after its fault",
+      "sovd_ros_rosbag_recording_active"),
+    C("bulk_data", "rosbag_recordings_written", COUNTER, "Recordings written to disk",
+      "sovd_ros_rosbag_recordings_written"),
+    C("bulk_data", "rosbag_write_errors", COUNTER, "Recordings that could not be written (disk full, directory "
+      "not writable, writer busy)", "sovd_ros_rosbag_write_errors"),
+    C("bulk_data", "rosbag_writes_pending", GAUGE, "Closed recordings waiting for the writer thread now",
+      "sovd_ros_rosbag_writes_pending"),
+    C("bulk_data", "rosbag_recordings", GAUGE, "Recordings on disk now", "sovd_ros_rosbag_recordings"),
+    C("bulk_data", "rosbag_disk_bytes", GAUGE, "Bytes of the recordings on disk now", "sovd_ros_rosbag_disk_bytes"),
+    C("bulk_data", "rosbag_disk_cap_mb", GAUGE, "MB of recordings kept at most (fault_rosbag_max_total_mb)",
+      "sovd_ros_rosbag_disk_cap_mb", setting="fault_rosbag_max_total_mb"),
+    C("bulk_data", "rosbag_evicted", COUNTER, "Recordings deleted for the caps (per fault, disk, count)",
+      "sovd_ros_rosbag_evicted"),
+    C("bulk_data", "rosbag_faults_unattached", COUNTER, "Faults confirmed while a recording with 33 faults was "
+      "open: in its data, not listed with it", "sovd_ros_rosbag_faults_unattached"),
+    C("bulk_data", "rosbag_definition_errors", COUNTER, "Message types whose definition was not found or did not "
+      "decode their messages", "sovd_ros_rosbag_definition_errors"),
 )
 # ---- x-medkit-locks: SOVD locks (issue 31; rosworker/locks/, the write check in app/locks/) ----
 COUNTERS += (

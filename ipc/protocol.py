@@ -48,6 +48,8 @@ COMMANDS = (
 COMMANDS += ("trig_create", "trig_list", "trig_get", "trig_update", "trig_delete", "trig_open")
 # Locks (rosworker/locks/).
 COMMANDS += ("lock_acquire", "lock_extend", "lock_release", "lock_list")
+# Bulk data: fault recordings (rosworker/bulk_data/); bulk_debug_pause only with debug_commands.
+COMMANDS += ("bulk_rosbags", "bulk_rosbag_get", "bulk_debug_pause")
 # Commands answered from counters by the control thread, without queueing behind ROS work;
 # clients send them to the control socket.
 IMMEDIATE = ("ping", "stats")

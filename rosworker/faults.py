@@ -195,6 +195,10 @@ class FaultManager:
         self._drained = time.monotonic()  # the last moment the subscription's queue was seen empty
         # faults triggers: set by rosworker/triggersources.py while a trigger watches faults, else None
         self.trigger_hook: Callable[[str, dict[str, Any]], None] | None = None
+        # fault recordings (rosworker/bulk_data/): told of each confirmation (code, sources), and asked
+        # for a fault's recordings (its snapshots of type rosbag, newest first); None when nothing records
+        self.on_confirmed: Callable[[str, list[str]], None] | None = None
+        self.recordings: Callable[[str], list[dict[str, Any]]] | None = None
         self._publish_stats()
 
     # ---- set-up (ROS thread, before the loop) -------------------------------------------------------
@@ -450,6 +454,8 @@ class FaultManager:
         record["snapshots"] = self._snapshots(record, wall, stale)
         self._event("fault_confirmed", record)
         self._write(record["code"])
+        if self.on_confirmed is not None:  # fault recordings: what led up to it is written
+            self.executor.guarded("the fault recording", self.on_confirmed, record["code"], list(record["sources"]))
 
     def _room(self) -> bool:
         """Room for one more fault: the oldest healed or cleared one goes at ``max_faults``."""
@@ -574,7 +580,10 @@ class FaultManager:
         record = self.faults.get(code)
         if record is None:
             raise IpcError("no-such-fault", "Fault not found", {"fault_code": code[:CODE_MAX]})
-        return {"fault": public(record), "snapshots": list(record["snapshots"]),
+        snapshots = list(record["snapshots"])
+        if self.recordings is not None:  # its recordings (rosworker/bulk_data/), as medkit lists them
+            snapshots += self.recordings(code)
+        return {"fault": public(record), "snapshots": snapshots,
                 "first_ns": record["first_ns"], "last_ns": record["last_ns"]}
 
     def clear(self, codes: list[str]) -> list[str]:

@@ -244,6 +244,10 @@ class Worker:
         from .leftfaults import LeftFaults, check_delay
         LeftFaults(faults, graph, stats, executor, check_after=check_delay(cfg.fault_stale_s)).start()
         commands.handlers.update(fault_handlers(faults))
+        # bulk data (issue 32): recordings of what led up to each fault (rosworker/bulk_data/)
+        from .bulk_data import FAMILY as bulk_data
+        bulk_data.start(cfg, node, executor, stats, endpoints, pool, faults)
+        commands.handlers.update(bulk_data.commands)
         # What the executor's loop runs: the queued commands, and a look at each topic that
         # callers wait on (its first message) on every round.
         # logs (issue 22): /rosout's ring buffers and their commands (rosworker/logs.py)
@@ -329,6 +333,7 @@ class Worker:
             triggers.close()  # triggers: their subscriptions destroyed (their rows are in the store)
             executor.run_posted()
             executor.guarded("the pool's shutdown", pool.shutdown)
+            executor.guarded("the bulk data's shutdown", bulk_data.shutdown)  # after the pool: shared subscriptions
             executor.guarded("the operations' shutdown", operations.shutdown)  # operations
             executor.guarded("the publishers' shutdown", publishers.shutdown)
             executor.guarded("the faults' shutdown", faults.shutdown)  # faults

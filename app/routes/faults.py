@@ -142,6 +142,19 @@ def _status_object(status: str) -> dict[str, str]:
             "confirmedDTC": "1" if confirmed else "0", "pendingDTC": "1" if pending else "0"}
 
 
+def _recording(frame: dict[str, Any], entity_path: str) -> dict[str, Any]:
+    """A fault recording (rosworker/bulk_data/) as medkit's rosbag snapshot, its URI under the entity asked."""
+    out: dict[str, Any] = {"type": "rosbag", "name": frame.get("name", ""),
+                           "bulk_data_uri": f"{entity_path}/bulk-data/rosbags/{frame.get('bulk_data_id', '')}",
+                           "size_bytes": frame.get("size_bytes", 0), "duration_sec": frame.get("duration_sec", 0.0),
+                           "format": frame.get("format", "mcap")}
+    ext: dict[str, Any] = {"topics": frame.get("topics") or [], "messages": frame.get("messages", 0)}
+    if frame.get("captured_at_ns"):
+        ext["captured_at"] = rfc3339(int(frame["captured_at_ns"])).decode()
+    out["x-medkit"] = ext
+    return out
+
+
 def _snapshot(frame: dict[str, Any]) -> dict[str, Any]:
     topic, message_type = frame.get("topic", ""), frame.get("message_type", "")
     out: dict[str, Any] = {"type": frame.get("type", "freeze_frame"), "name": frame.get("name", "")}
@@ -162,8 +175,8 @@ def _snapshot(frame: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def detail(answer: dict[str, Any]) -> dict[str, Any]:
-    """medkit's ``build_sovd_fault_response``."""
+def detail(answer: dict[str, Any], entity_path: str = "") -> dict[str, Any]:
+    """medkit's ``build_sovd_fault_response``; ``entity_path`` (``/apps/x``) leads its recordings' URIs."""
     fault = answer["fault"]
     item: dict[str, Any] = {"code": fault["fault_code"]}
     if fault.get("description"):
@@ -178,7 +191,8 @@ def detail(answer: dict[str, Any]) -> dict[str, Any]:
             "environment_data": {
                 "extended_data_records": {"first_occurrence": rfc3339(answer["first_ns"]).decode(),
                                           "last_occurrence": rfc3339(answer["last_ns"]).decode()},
-                "snapshots": [_snapshot(s) for s in answer.get("snapshots") or [] if isinstance(s, dict)]},
+                "snapshots": [_recording(s, entity_path) if s.get("type") == "rosbag" else _snapshot(s)
+                              for s in answer.get("snapshots") or [] if isinstance(s, dict)]},
             "x-medkit": ext}
 
 
@@ -252,7 +266,7 @@ def clear_entity(collection: str, entity_id: str):
 def get_one(collection: str, entity_id: str, fault_code: str):
     entity = lookup(collection, entity_id)
     _check_code(fault_code)
-    return json_response(detail(_scoped_fault(collection, entity, fault_code)))
+    return json_response(detail(_scoped_fault(collection, entity, fault_code), f"/{collection}/{entity.id}"))
 
 
 @bp.delete(ENTITY + "/faults/<fault_code>")

@@ -10,7 +10,7 @@ from flask import Blueprint, current_app
 from common.process import DISTRIBUTION, package_version
 from ipc import counters
 
-from .. import locks, metrics, openapi, rosclient
+from .. import bulk_data, locks, metrics, openapi, rosclient
 from ..entities import API_BASE
 from ..errors import ApiError
 from . import unimplemented
@@ -47,6 +47,7 @@ def root():
             "triggers": True,  # condition triggers (app/routes/triggers.py)
             # ui (issue 21): the dashboard's Parameters panel shows its editor when configurations may be changed
             "configuration_writes": bool(cfg.allow_configurations),
+            "bulk_data": True, "bulk_data_writes": bool(cfg.allow_bulk_data),  # app/bulk_data/ (issue 32)
             # medkit's features not served here: their routes answer 501 (app/routes/unimplemented.py)
             **unimplemented.capabilities(),
             "aggregation": False,  # the fleet gateway's is true (app/fleet/routes.py)
@@ -137,6 +138,7 @@ def health():
         "x-medkit-faults": faults_health(stats),  # faults (rosworker/faults.py)
         "x-medkit-logs": _logs_section(stats),  # logs (issue 22)
         "x-medkit-locks": locks.health_section(stats, config()),  # locks (issue 31)
+        "x-medkit-bulk-data": bulk_data.health(stats, config()),  # fault recordings (issue 32)
     }
     for name, section in current_app.extensions.get(HEALTH_SECTIONS, {}).items():
         body[name] = section()   # a family's own section (the fleet link's: app/fleet/)

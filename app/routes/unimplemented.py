@@ -2,10 +2,9 @@
 
 medkit answers some of these with 501 when the provider behind them is not
 there (no update plugin, no scripts backend, no lifecycle provider for the
-transitions), and its handlers say so before they look at the entity.  It answers the same way whatever the entity id: a client tells "not served
-here" (501) from "no such entity or route" (404).  Bulk data has no "not
-loaded" case in medkit (its handlers always serve it); it is answered 501 here
-for the same reason.
+transitions), and its handlers say so before they look at the entity.  It answers the same way
+whatever the entity id: a client tells "not served here" (501) from "no such entity or route"
+(404).  Locks (``app/locks/``, issue 31) and bulk data (``app/bulk_data/``, issue 32) are served.
 
 :data:`ROUTES` is the one table: the blueprint, the OpenAPI document
 (``app/openapi.py``) and the capabilities of ``GET /api/v1/``
@@ -31,7 +30,6 @@ class Feature(NamedTuple):
 
 
 FEATURES = {
-    "bulk-data": Feature("bulk_data", "Bulk Data", "Bulk data is not available on this gateway"),
     "scripts": Feature("scripts", "Scripts", "Scripts backend not configured"),
     "lifecycle": Feature("lifecycle", "Lifecycle", "Lifecycle control not available for this entity"),
     "updates": Feature("updates", "Updates", "Software updates not available"),
@@ -48,31 +46,9 @@ class Route(NamedTuple):
 
 
 _APPS_COMPONENTS = ("apps", "components")
-_ALL = ("areas", "components", "apps", "functions")
 _TRANSITIONS = ("start", "restart", "force-restart", "shutdown", "force-shutdown")
 
 ROUTES: tuple[Route, ...] = (
-    Route("bulk-data", "GET", "/bulk-data", _ALL, "list{Kind}BulkDataCategories", "Bulk-data categories"),
-    Route("bulk-data", "GET", "/bulk-data/{category_id}", _ALL, "list{Kind}BulkDataDescriptors",
-          "Bulk-data files of a category"),
-    Route("bulk-data", "GET", "/bulk-data/{category_id}/{file_id}", _ALL, "download{Kind}BulkData",
-          "Download a bulk-data file"),
-    Route("bulk-data", "POST", "/bulk-data/{category_id}", _APPS_COMPONENTS, "upload{Kind}BulkData",
-          "Upload a bulk-data file"),
-    Route("bulk-data", "DELETE", "/bulk-data/{category_id}/{file_id}", _APPS_COMPONENTS, "delete{Kind}BulkData",
-          "Delete a bulk-data file"),
-    Route("bulk-data", "GET", "/subareas/{subarea_id}/bulk-data", ("areas",), "listSubareaBulkDataCategories",
-          "Bulk-data categories of a subarea"),
-    Route("bulk-data", "GET", "/subareas/{subarea_id}/bulk-data/{category_id}", ("areas",),
-          "listSubareaBulkDataDescriptors", "Bulk-data files of a subarea's category"),
-    Route("bulk-data", "GET", "/subareas/{subarea_id}/bulk-data/{category_id}/{file_id}", ("areas",),
-          "downloadSubareaBulkData", "Download a subarea's bulk-data file"),
-    Route("bulk-data", "GET", "/subcomponents/{subcomponent_id}/bulk-data", ("components",),
-          "listSubcomponentBulkDataCategories", "Bulk-data categories of a subcomponent"),
-    Route("bulk-data", "GET", "/subcomponents/{subcomponent_id}/bulk-data/{category_id}", ("components",),
-          "listSubcomponentBulkDataDescriptors", "Bulk-data files of a subcomponent's category"),
-    Route("bulk-data", "GET", "/subcomponents/{subcomponent_id}/bulk-data/{category_id}/{file_id}",
-          ("components",), "downloadSubcomponentBulkData", "Download a subcomponent's bulk-data file"),
     Route("scripts", "POST", "/scripts", _APPS_COMPONENTS, "upload{Kind}Script", "Upload a diagnostic script"),
     Route("scripts", "GET", "/scripts", _APPS_COMPONENTS, "list{Kind}Scripts", "List diagnostic scripts"),
     Route("scripts", "GET", "/scripts/{script_id}", _APPS_COMPONENTS, "get{Kind}Script", "One script"),

@@ -6,7 +6,10 @@ be documented for its operation (or fall under ``default``).
 
 from __future__ import annotations
 
+import io
+import os
 import re
+import tempfile
 
 import jsonschema
 import pytest
@@ -73,7 +76,8 @@ def check(doc, method: str, path: str, response) -> str:
         assert response.data == b"", f"{key} {status} has a body"
         return key
     if "application/json" not in spec["content"]:  # text (the metrics)
-        assert any(response.headers["Content-Type"].startswith(kind) for kind in spec["content"]), key
+        binary = all(c["schema"].get("format") == "binary" for c in spec["content"].values())  # a file's own type
+        assert binary or any(response.headers["Content-Type"].startswith(kind) for kind in spec["content"]), key
         return key
     schema = spec["content"]["application/json"]["schema"]
     assert response.headers["Content-Type"] == "application/json"
@@ -81,6 +85,71 @@ def check(doc, method: str, path: str, response) -> str:
     errors = sorted(validator.iter_errors(response.get_json()), key=str)
     assert not errors, f"{key} {status}: " + "; ".join(e.message for e in errors[:5])
     return key
+
+
+def _exercise_bulk_data(doc, fw, seen: dict, auth: dict) -> None:
+    """Bulk data (issue 32): every route and its statuses, a recording on disk as the ROS worker lists it
+    (the real recordings: tests/system/test_bulk_data.py)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        bag = os.path.join(tmp, "fault_HOT_1.mcap")
+        with open(bag, "wb") as fh:
+            fh.write(b"\x89MCAP0\r\n" + bytes(range(256)))
+        recording = {"id": "fault_HOT_1", "format": "mcap", "fault_codes": ["HOT"],
+                     "sources": {"HOT": ["/powertrain/engine/temp_sensor"]}, "created_ns": 1_700_000_000_000_000_000,
+                     "started_ns": 1, "ended_ns": 2, "duration_sec": 1.5, "messages": 3, "path": bag, "size": 264,
+                     "topics": [{"topic": "/powertrain/engine/temperature", "type": "sensor_msgs/msg/Temperature"}]}
+        fw.replies = {**getattr(fw, "replies", {}), "bulk_rosbags": {"items": [recording]},
+                      "bulk_rosbag_get": lambda args: recording if args["id"] == "fault_HOT_1" else
+                      IpcError("no-such-recording", "Bulk-data not found", {"bulk_data_id": args["id"]}),
+                      "fault_list": {"items": []}}
+        client = make_app(fw, allow_bulk_data=True, api_token=TOKEN, bulk_data_categories="calibration",
+                          bulk_data_storage_dir=os.path.join(tmp, "files"), bulk_data_max_upload_size=1000,
+                          bulk_data_max_total_mb=1).test_client()
+        off = make_app(fw, bulk_data_categories="calibration", bulk_data_storage_dir=os.path.join(tmp, "files"),
+                       ).test_client()
+        upload = {"data": {"file": (io.BytesIO(b"calibrated"), "cal.bin")}, "content_type": "multipart/form-data"}
+        made = client.post("/api/v1/apps/temp_sensor/bulk-data/calibration", headers=auth,
+                           **{**upload, "data": {"file": (io.BytesIO(b"calibrated"), "cal.bin")}})
+        assert made.status_code == 201, made.data
+        for collection, eid in ENTITY.items():
+            base = f"/api/v1/{collection}/{eid or 'nope'}/bulk-data"
+            requests = [("GET", base, {}), ("GET", f"/api/v1/{collection}/bad.id/bulk-data", {}),
+                        ("GET", base + "/rosbags", {}), ("GET", base + "/nope", {}), ("GET", base + "/..%2Fx", {}),
+                        ("GET", base + "/rosbags/fault_HOT_1", {}),
+                        ("GET", base + "/rosbags/fault_HOT_1", {"headers": {"Range": "bytes=0-9"}}),
+                        ("GET", base + "/rosbags/fault_HOT_1", {"headers": {"Range": "bytes=999-"}}),
+                        ("GET", base + "/rosbags/fault_NONE_1", {}), ("GET", base + "/rosbags/..%2F..%2Fx", {}),
+                        ("GET", base + "/calibration", {}), ("GET", base + "/calibration/nope_1", {})]
+            if collection in ("areas", "components"):
+                sub = f"{base[:-len('/bulk-data')]}/{'subareas' if collection == 'areas' else 'subcomponents'}/s"
+                requests += [("GET", sub + "/bulk-data", {}), ("GET", sub + "/bulk-data/rosbags", {}),
+                             ("GET", sub + "/bulk-data/rosbags/fault_HOT_1", {})]
+            if collection in ("apps", "components"):
+                item = f"{base}/calibration/{made.get_json()['id']}" if collection == "apps" else base + "/calibration/x_1"
+                requests += [("GET", item, {}),
+                             ("POST", base + "/calibration", {**upload, "headers": auth}),
+                             ("POST", base + "/calibration", {**upload}),
+                             ("POST", base + "/calibration", {**upload, "headers": {"Authorization": "Bearer no"}}),
+                             ("POST", base + "/rosbags", {**upload, "headers": auth}),
+                             ("POST", base + "/nope", {**upload, "headers": auth}),
+                             ("POST", base + "/calibration", {"data": b"x", "content_type": "text/plain",
+                                                              "headers": auth}),
+                             ("POST", base + "/calibration", {"data": {"file": (io.BytesIO(b"x" * 2000), "big")},
+                                                              "content_type": "multipart/form-data", "headers": auth}),
+                             ("DELETE", item, {"headers": auth}), ("DELETE", item, {"headers": auth}),
+                             ("DELETE", item, {}), ("DELETE", base + "/rosbags/fault_HOT_1", {"headers": auth})]
+            for method, path, kw in requests:
+                if "data" in kw and isinstance(kw["data"], dict):  # a fresh file object per request
+                    kw = {**kw, "data": {k: (io.BytesIO(v[0].getvalue()), v[1]) for k, v in kw["data"].items()}}
+                r = client.open(path, method=method, **kw)
+                check(doc, method, path, r)
+                seen.setdefault(operation(doc, method, path)[0], set()).add(r.status_code)
+            r = off.post(base + "/calibration", **{**upload, "data": {"file": (io.BytesIO(b"x"), "x")}})
+            assert collection not in ("apps", "components") or r.status_code == 403, r.data
+        del fw.replies["bulk_rosbags"], fw.replies["bulk_rosbag_get"], fw.replies["fault_list"]
+    for statuses in (seen["GET /apps/{app_id}/bulk-data/{category_id}/{file_id}"],
+                     seen["POST /apps/{app_id}/bulk-data/{category_id}"]):
+        assert len(statuses) >= 3, statuses
 
 
 def test_schemas_are_valid_json_schema(doc):
@@ -437,6 +506,7 @@ def test_every_route_answers_per_the_document(doc):
         r = client.get("/api/v1/apps/temp_sensor/configurations/rate")
         assert r.status_code == 503 and r.headers["Retry-After"] == "3"
         check(doc, "GET", "/api/v1/apps/temp_sensor/configurations/rate", r)
+        _exercise_bulk_data(doc, fw, seen, auth)
         fw.stop()
         for path in ("/api/v1/health", "/api/v1/apps", "/api/v1/apps/temp_sensor",
                      "/api/v1/components/test-robot/hosts", "/api/v1/apps/temp_sensor/docs"):
@@ -478,14 +548,16 @@ def test_every_operation_with_a_json_body_documents_the_body_errors(doc):
                  if "requestBody" in op]
     # PUT data of 4 collections; POST and PUT cyclic-subscriptions of 3; POST and PUT executions of 3;
     # PUT configurations of 3; PUT logs/configuration of 3; POST and PUT triggers of 3; POST and PUT
-    # locks of 2; the three POST /auth routes
-    assert len(with_body) == 35
+    # locks of 2; the three POST /auth routes; POST bulk-data of 2
+    assert len(with_body) == 37
     for method, path, op in with_body:
         if path.startswith("/auth/"):  # medkit's OAuth2 routes: a form too, and 400 for another type
             assert {"408", "413", "400"} <= set(op["responses"]), (method, path)
             assert "application/json" in op["requestBody"]["content"]
             continue
-        assert list(op["requestBody"]["content"]) == ["application/json"], (method, path)
+        multipart = "/bulk-data/" in path  # an upload (app/bulk_data/files.py)
+        assert list(op["requestBody"]["content"]) == ["multipart/form-data" if multipart else "application/json"], \
+            (method, path)
         assert {"408", "413", "415"} <= set(op["responses"]), (method, path)
 
 

@@ -42,10 +42,10 @@ def test_root_says_what_is_not_served(client):
     """The capabilities say what answers 501 (app/routes/unimplemented.py) and what is not there yet."""
     body = client.get("/api/v1/").get_json()
     caps = body["capabilities"]
-    for name in ("bulk_data", "scripts", "lifecycle", "updates", "authentication", "tls"):
+    for name in ("scripts", "lifecycle", "updates", "authentication", "tls", "bulk_data_writes"):
         assert caps[name] is False, name
     for name in ("cyclic_subscriptions", "docs", "operations", "async_actions", "configurations", "faults",
-                 "logs", "triggers", "locking"):
+                 "logs", "triggers", "locking", "bulk_data"):  # locks: issue 31; bulk data: issue 32
         assert caps[name] is True, name
     assert "GET /api/v1/updates" in body["endpoints"]
     assert "POST /api/v1/apps/{app_id}/locks" in body["endpoints"]
@@ -184,6 +184,11 @@ def test_entity_docs_fill_in_the_entity(client):
         "/components/test-robot/operations/{operation_id}/executions",
         "/components/test-robot/operations/{operation_id}/executions/{execution_id}",
         "/components/test-robot/faults", "/components/test-robot/faults/{fault_code}",  # faults (issue 22)
+        "/components/test-robot/bulk-data", "/components/test-robot/bulk-data/{category_id}",  # issue 32
+        "/components/test-robot/bulk-data/{category_id}/{file_id}",
+        "/components/test-robot/subcomponents/{subcomponent_id}/bulk-data",
+        "/components/test-robot/subcomponents/{subcomponent_id}/bulk-data/{category_id}",
+        "/components/test-robot/subcomponents/{subcomponent_id}/bulk-data/{category_id}/{file_id}",
         "/components/test-robot/locks", "/components/test-robot/locks/{lock_id}"]  # locks (issue 31)
     get = doc["paths"]["/components/test-robot/hosts"]["get"]
     assert get["operationId"] == "listComponentHosts" and "parameters" not in get

@@ -290,8 +290,9 @@ def test_routes_not_served_here_are_501_not_404(gw):
                                 "message": unimplemented.FEATURES[route.feature].message,
                                 "parameters": {"feature": route.feature}}, concrete
     caps = gw.get("/").json()["capabilities"]
-    assert [name for name in ("bulk_data", "scripts", "lifecycle", "updates") if caps[name]] == []
+    assert [name for name in ("scripts", "lifecycle", "updates") if caps[name]] == []
     assert caps["locking"] is True   # locks are served (issue 31), on by default as in medkit
+    assert caps["bulk_data"] is True  # served (issue 32, app/bulk_data/)
     r = gw.get("/apps/temp_sensor/no-such-collection")
     assert r.status_code == 404 and r.json()["error_code"] == "resource-not-found"
     r = requests.post(gw.api + "/areas/nope/bulk-data/x1", headers=auth, timeout=15)   # (a write: the token first)
