@@ -35,6 +35,9 @@ from .entities import API_BASE, COLLECTIONS
 WRITE_METHODS = frozenset({"POST", "PUT", "DELETE", "PATCH"})
 ENVIRON_KEY = "sovd.target"
 _VARIABLE = re.compile(r"<(?:[^<>]*:)?([A-Za-z_][A-Za-z0-9_]*)>")
+# Converters whose value's slashes are segments to the role table (bulk data's ``{category}/{file_id}``),
+# where every other variable is one segment; at most 3 are counted (3 matches no entry but admin's).
+_SEGMENTED = re.compile(r"<bulk_rest:([A-Za-z_][A-Za-z0-9_]*)>")
 _PREFIX = API_BASE + "/"
 
 
@@ -61,10 +64,18 @@ class _Shape:
     entity_var: str | None
     family: str
     template: str               # the rule with {name} for each variable
+    segmented: tuple[str, ...] = ()  # the variables counted segment by segment (_SEGMENTED)
 
 
 @functools.lru_cache(maxsize=512)
 def _shape(rule: str) -> _Shape:
+    shape = _plain_shape(rule)
+    segmented = tuple(_SEGMENTED.findall(rule))
+    return _Shape(shape.collection, shape.collection_var, shape.entity_var, shape.family, shape.template,
+                  segmented) if segmented else shape
+
+
+def _plain_shape(rule: str) -> _Shape:
     template = _VARIABLE.sub(lambda m: "{" + m.group(1) + "}", rule)
     if not rule.startswith(_PREFIX):
         return _Shape(None, None, None, "metrics" if rule == "/metrics" else "ui", template)
@@ -91,6 +102,8 @@ def parse(method: str, path: str, rule: str | None, view_args: dict[str, Any] | 
     collection = shape.collection or (str(args.get(shape.collection_var)) if shape.collection_var else None)
     entity_id = args.get(shape.entity_var) if shape.entity_var else None
     values = {name: "x" for name in args}
+    for name in shape.segmented:
+        values[name] = "/".join(["x"] * min(3, len(str(args.get(name, "")).strip("/").split("/"))))
     if shape.collection_var:
         values[shape.collection_var] = collection
     try:

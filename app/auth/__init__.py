@@ -195,21 +195,22 @@ def _check() -> Response | None:
     return None
 
 
-_decisions: dict[tuple[str, str, str, str | None], bool] = {}
+_decisions: dict[tuple[str, str, str], bool] = {}
 
 
 def _allowed(req, role: str) -> bool:
     """The role table's answer for this request.  For a matched route it depends only on the role, the
-    method, the rule and its collection (every other variable is one segment to the table:
-    ``app/target.py``), so it is remembered by those (a bounded set); an unmatched path is matched."""
+    method and the route's role path (its collection, every other variable one segment, bulk data's
+    at most three: ``app/target.py``), so it is remembered by those (a bounded set); an unmatched
+    path is matched each time."""
     method = "GET" if req.method == "HEAD" else req.method
-    rule = req.url_rule
-    if rule is None:
-        return roles.allowed(role, method, targets.of(req).role_path)
-    key = (role, method, rule.rule, (req.view_args or {}).get("collection"))
+    role_path = targets.of(req).role_path
+    if req.url_rule is None:
+        return roles.allowed(role, method, role_path)
+    key = (role, method, role_path)
     decision = _decisions.get(key)
     if decision is None:
-        decision = _decisions[key] = roles.allowed(role, method, targets.of(req).role_path)
+        decision = _decisions[key] = roles.allowed(role, method, role_path)
     return decision
 
 

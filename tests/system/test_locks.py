@@ -31,7 +31,8 @@ def listener():
 
 @pytest.fixture(scope="module")
 def gw(listener):
-    gateway = Gateway("--allow-publish", "--workers", "2", "--locking-cleanup-interval", "1")
+    gateway = Gateway("--allow-publish", "--allow-bulk-data", "--bulk-data-categories", "logs", "--workers", "2",
+                      "--locking-cleanup-interval", "1")
     poll_until(lambda: APP in {a["id"] for a in gateway.get("/apps").json()["items"]}, 30, message="listener listed")
     yield gateway
     gateway.stop()
@@ -192,3 +193,27 @@ def test_locking_off_answers_501_and_checks_nothing(listener):
         assert gateway.get("/").json()["capabilities"]["locking"] is False
     finally:
         gateway.stop()
+
+
+def test_a_bulk_data_lock_keeps_other_clients_uploads_and_deletes_out(clean):
+    """bulk-data (issue 32) is one of the lock's scopes like every write family: upload and delete."""
+    gw = clean
+    base = f"/apps/{APP}/bulk-data/logs"
+
+    def upload(who: str) -> requests.Response:
+        return gw.request("POST", base, files={"file": ("l.log", b"a log")}, headers={"X-Client-Id": who})
+
+    mine = upload("bob")
+    assert mine.status_code == 201, mine.text
+    lock = acquire(gw, "alice", scopes=["bulk-data"]).json()
+    r = upload("bob")
+    assert r.status_code == 409 and r.json()["parameters"] == {"entity_id": APP, "collection": "bulk-data",
+                                                               "lock_id": lock["id"]}, r.text
+    r = gw.request("DELETE", f"{base}/{mine.json()['id']}", headers={"X-Client-Id": "bob"})
+    assert r.status_code == 409, r.text
+    assert [f["id"] for f in gw.get(base).json()["items"]] == [mine.json()["id"]]  # nothing lost, nothing added
+    assert as_client(gw, "bob", PUBLISH).status_code == 200  # data: not in the lock's scopes
+    ours = upload("alice")
+    assert ours.status_code == 201, ours.text
+    for item in (ours, mine):
+        assert gw.request("DELETE", f"{base}/{item.json()['id']}", headers={"X-Client-Id": "alice"}).status_code == 204

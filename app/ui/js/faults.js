@@ -12,7 +12,7 @@
 // Faults that an earlier run left in the store (their nodes are not on the graph: /health's
 // x-medkit-faults.left_by_absent_nodes) are said to be so, and their rows are marked.
 
-import { describe, eventSource, get, request } from "./api.js";
+import { describe, eventSource, get, request, url } from "./api.js";
 import { fill, formatTime, h } from "./dom.js";
 import { current, pathOf, scopeSwitch } from "./scope.js";
 

@@ -42,6 +42,13 @@ def test_medkits_wildcards_and_methods():
      ("operations", "components", "h", "/api/v1/components/x/operations/x/executions")),
     ("POST", "/api/v1/apps/a/bulk-data/c", "/api/v1/apps/<app_id>/bulk-data/<category_id>",
      {"app_id": "a", "category_id": "c"}, ("bulk-data", "apps", "a", "/api/v1/apps/x/bulk-data/x")),
+    # bulk data's routes (app/bulk_data/): {category}/{file_id} in one variable, two segments to the table
+    ("DELETE", "/api/v1/apps/a/bulk-data/logs/f1", "/api/v1/<any(apps,components):collection>/<entity_id>"
+     "/bulk-data/<bulk_rest:rest>", {"collection": "apps", "entity_id": "a", "rest": "logs/f1"},
+     ("bulk-data", "apps", "a", "/api/v1/apps/x/bulk-data/x/x")),
+    ("POST", "/api/v1/apps/a/bulk-data/logs", "/api/v1/<any(apps,components):collection>/<entity_id>"
+     "/bulk-data/<bulk_rest:rest>", {"collection": "apps", "entity_id": "a", "rest": "logs"},
+     ("bulk-data", "apps", "a", "/api/v1/apps/x/bulk-data/x")),
     ("DELETE", "/api/v1/faults", "/api/v1/faults", {}, ("faults", None, None, "/api/v1/faults")),
     ("GET", "/api/v1/apps/a", "/api/v1/<collection:collection>/<entity_id>", {"collection": "apps", "entity_id": "a"},
      ("discovery", "apps", "a", "/api/v1/apps/x")),
@@ -54,6 +61,16 @@ def test_a_requests_target(method, path, rule, args, expected):
     got = target.parse(method, path, rule, args)
     assert (got.family, got.collection, got.entity_id, got.role_path) == expected
     assert got.write == (method in ("POST", "PUT", "DELETE", "PATCH"))
+
+
+def test_an_operator_may_upload_and_delete_bulk_data_as_medkits_table_says():
+    for method, rest, allowed in (("POST", "logs", True), ("DELETE", "logs/f1", True),
+                                  ("DELETE", "logs", False), ("DELETE", "a/b/c", False)):
+        got = target.parse(method, f"/api/v1/apps/a/bulk-data/{rest}",
+                           "/api/v1/<any(apps,components):collection>/<entity_id>/bulk-data/<bulk_rest:rest>",
+                           {"collection": "apps", "entity_id": "a", "rest": rest})
+        assert roles.allowed("operator", method, got.role_path) is allowed, (method, rest)
+        assert roles.allowed("viewer", method, got.role_path) is False
 
 
 def test_every_write_route_of_the_app_has_a_family_and_the_roles_know_its_shape():
