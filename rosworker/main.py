@@ -336,6 +336,8 @@ class Worker:
             executor.guarded("the bulk data's shutdown", bulk_data.shutdown)  # after the pool: shared subscriptions
             executor.guarded("the operations' shutdown", operations.shutdown)  # operations
             executor.guarded("the publishers' shutdown", publishers.shutdown)
+            # configurations: the parameter operations in flight are answered "shutdown"
+            executor.guarded("the parameters' shutdown", parameters.shutdown)
             executor.guarded("the faults' shutdown", faults.shutdown)  # faults
             executor.guarded("the logs' shutdown", logbook.shutdown)  # logs (issue 22)
             executor.guarded("the locks' shutdown", locks.shutdown)  # locks (issue 31)
