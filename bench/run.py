@@ -697,7 +697,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="extra sovd-gateway flags, e.g. '--workers 3' (recorded in the JSON)")
     parser.add_argument("--rounds", type=int, help="floor/warm rounds (default 3, quick 1)")
     parser.add_argument("--only", metavar="CASES", help="comma-separated subset of: warm (floor, warm "
-                        "sample and echo route), old, memory, image, cold, idle, streams, stream_image, sub_costs, operations, params, rosout, faults, fleet, bulk_data (for "
+                        "sample and echo route), old, memory, image, cold, idle, streams, stream_image, sub_costs, operations, params, rosout, faults, fleet, auth, write_checks, bulk_data (for "
                         "development; the table is "
                         "partial)")
     args = parser.parse_args(argv)
