@@ -5,7 +5,8 @@ ROS thread, which only queues it: at most ``QUEUE`` wait; past that a recording 
 refused and counted).  The writer is pure Python work under the GIL: it hands the GIL
 over every ``YIELD_EVERY`` messages and merges the topics' messages in Python steps
 rather than sorting them in one C call, so a warm sample on the ROS thread waits for
-it at most a few messages' worth.  The thread writes it as MCAP with the ROS 2 profile, with the
+it at most a few messages' worth; the thread runs at nice ``NICE`` (Linux schedules
+threads one by one), so on a busy machine the ROS thread and the HTTP workers come first.  The thread writes it as MCAP with the ROS 2 profile, with the
 ``mcap`` package: ``ros2msg`` schemas carrying each type's complete message definition
 (``msgdefs.py``, as rosbag2 writes them), ``cdr`` message encoding, zstd-compressed
 chunks, the messages in receive-time order with their receive time as ``log_time`` and
@@ -59,7 +60,8 @@ FORMAT = "mcap"
 QUEUE = 2                 # closed recordings waiting for the writer, at most
 MAX_RECORDINGS = 1000     # recordings kept, at most (the oldest go first)
 CHUNK_SIZE = 1 << 20      # bytes of messages per compressed chunk
-YIELD_EVERY = 64          # messages written between two hand-overs of the GIL to the ROS thread
+YIELD_EVERY = 8           # messages written between two hand-overs of the GIL to the ROS thread
+NICE = 10                 # the writer thread's nice value (Linux schedules threads one by one)
 ERROR_LOG_EVERY = 60.0    # seconds between two logged write failures of the same kind
 
 
@@ -136,6 +138,10 @@ class RecordingStore:
                         "lost (its temporary file is removed at the next start)", timeout)
 
     def _run(self) -> None:
+        try:  # Linux: this thread only; the ROS thread and the HTTP workers come first for the cores
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), NICE)
+        except (AttributeError, OSError):
+            pass
         while True:
             recording = self._queue.get()
             if recording is None:
