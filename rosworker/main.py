@@ -323,6 +323,8 @@ class Worker:
             executor.guarded("the pool's shutdown", pool.shutdown)
             executor.guarded("the operations' shutdown", operations.shutdown)  # operations
             executor.guarded("the publishers' shutdown", publishers.shutdown)
+            # configurations: the parameter operations in flight are answered "shutdown"
+            executor.guarded("the parameters' shutdown", parameters.shutdown)
             executor.guarded("the faults' shutdown", faults.shutdown)  # faults
             executor.guarded("the logs' shutdown", logbook.shutdown)  # logs (issue 22)
             executor.linger()
