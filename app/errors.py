@@ -56,7 +56,7 @@ IPC_ANSWERS: dict[str, tuple[int, str, str | None, int | None]] = {
     "not-responding": (504, "not-responding", None, None),
     "no-such-execution": (404, "resource-not-found", None, None),
     "goals-full": (503, "service-unavailable", None, 5),
-    # configurations (rosworker/parameters.py): medkit's parameter_error_classification.cpp
+    # configurations (rosworker/configurations/clients.py): medkit's parameter_error_classification.cpp
     "node-unavailable": (503, "vendor-error", "x-medkit-ros2-node-unavailable", 2),
     "no-such-parameter": (404, "resource-not-found", None, None),
     "no-default": (404, "resource-not-found", None, None),

@@ -8,7 +8,7 @@ stream of the process.
 
 An event is medkit's: ``id: <n>``, ``event: fault_confirmed | fault_updated |
 fault_cleared`` and ``data: {"event_type", "fault", "timestamp"}``.  Event ids
-never go backwards, across restarts too (``rosworker/faults.py``), so a client
+never go backwards, across restarts too (``rosworker/faults/manager.py``), so a client
 that reconnects with ``Last-Event-ID`` gets what it missed, replayed from the
 ROS worker (the last ``MAX_EVENTS``), then the live events.  A restarted ROS
 worker publishes before this process's subscription has reached it (the

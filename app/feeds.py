@@ -1,4 +1,4 @@
-"""The HTTP side of cyclic subscriptions on an execution or a parameter (``rosworker/feeds.py``).
+"""The HTTP side of cyclic subscriptions on an execution or a parameter (``rosworker/configurations/feed.py``).
 
 - :func:`target`: what a subscription's resource names, checked as a GET of it
   would be (an unknown operation, execution or parameter is the same 404; a

@@ -236,7 +236,7 @@ class RosWorkerCollector:
         yield from families.values()
         details = stats.get("details") if isinstance(stats.get("details"), dict) else {}
         yield from self._labelled(details)
-        yield from _fault_metrics(stats.get("faults"))  # faults (rosworker/faults.py)
+        yield from _fault_metrics(stats.get("faults"))  # faults (rosworker/faults/manager.py)
 
     def _labelled(self, details: dict) -> Iterator[Any]:
         """The details' maps: one counter family per map (two for a command's count and time)."""
@@ -264,7 +264,7 @@ class RosWorkerCollector:
 
 
 def _fault_metrics(part: Any) -> Iterator[Any]:
-    """faults: ``sovd_faults_active{severity}`` and the fault store's counters (rosworker/faults.py)."""
+    """faults: ``sovd_faults_active{severity}`` and the fault store's counters (rosworker/faults/manager.py)."""
     from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 
     if not isinstance(part, dict):

@@ -931,7 +931,7 @@ SCHEMAS["HealthStatus"]["properties"]["x-medkit-faults"] = {
                                  "reporting nodes are not on the graph (an earlier run's, another robot's, or "
                                  "their nodes died): nobody reports them again"},
            absent_nodes={**STR_LIST, "description": "the reporting nodes of those faults (at most 16)"}),
-    "description": "the fault manager (rosworker/faults.py) and its SQLite store; zeros before the ROS worker "
+    "description": "the fault manager (rosworker/faults/manager.py) and its SQLite store; zeros before the ROS worker "
                    "first answers"}
 _FAULT_QUERY = {"name": "status", "in": "query", "required": False,
                 "schema": {"enum": ["pending", "confirmed", "cleared", "healed", "all"]},

@@ -9,7 +9,7 @@ new random id.  After it (:func:`_echo`) the response carries the id; the
 access line reads it from there (``%({x-request-id}o)s``,
 ``app/gunicorn_conf.py``).  :func:`current` gives it to the ROS-worker client
 (``app/rosclient.py``), which sends it in the IPC envelope, so the ROS
-worker's log lines of that command carry it too (``rosworker/requestlog.py``).
+worker's log lines of that command carry it too (``rosworker/core/requestlog.py``).
 
 :class:`RequestIdFilter` adds `` [request <id>]`` to the HTTP worker's own log
 lines written inside a request (Flask's handler: an unhandled error's

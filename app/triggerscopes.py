@@ -5,7 +5,7 @@ these collections (after the entity checks every resource gets).  The scope is
 the one the faults and logs routes use: the node FQNs of the entity's apps
 (``app/routes/logs.py`` ``source_fqns``: an app's own node, a component's or a
 function's hosted apps' nodes), resolved when the trigger is made and sent to
-the ROS worker as the trigger's ``target`` (JSON, ``rosworker/triggersources.py``).
+the ROS worker as the trigger's ``target`` (JSON, ``rosworker/triggers/sources.py``).
 
 A condition that cannot apply is refused here (400 ``invalid-parameter``): a
 fault event's and a log line's payload is an object, never a number, so

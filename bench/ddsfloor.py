@@ -21,7 +21,7 @@ def main() -> int:
     topics = json.loads(sys.argv[1])
     import rclpy
 
-    from rosworker import msgtypes, qos
+    from rosworker.ros import msgtypes, qos
 
     node, stop = rosmain.start("bench_dds_floor", start_parameter_services=False, enable_rosout=False)
     subs = []

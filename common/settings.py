@@ -186,7 +186,7 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("max_parameter_clients", int, 64, "LRU cap on nodes with pooled parameter clients", 1, 4096),
     Setting("parameter_client_idle_s", float, 300.0, "seconds a node's unused parameter clients are kept",
             1, 86400),
-    # --- faults: /diagnostics as SOVD faults (rosworker/faults.py, README "Faults") ---
+    # --- faults: /diagnostics as SOVD faults (rosworker/faults/manager.py, README "Faults") ---
     Setting("state_dir", str, "", "directory of the store faults.db: faults and triggers (default: "
             "$STATE_DIRECTORY, else $XDG_STATE_HOME/sovd-gateway, else ~/.local/state/sovd-gateway)"),
     Setting("fault_confirm_count", int, 3, "failing reports that confirm a fault", 1, 10000),

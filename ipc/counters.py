@@ -5,7 +5,7 @@ answer it is in, its key there, its kind, what it means and, when it is
 exported on its own, its Prometheus name.  Everything else is derived from
 this table, so a new counter is one line here (and the code that counts it):
 
-- ``rosworker/stats.py``: the ROS worker's attributes (zero at start) and its
+- ``rosworker/core/stats.py``: the ROS worker's attributes (zero at start) and its
   ``stats`` answer (:data:`ROS_COUNTERS`, in this order);
 - ``app/metrics.py``: the ``sovd_ros_*`` metrics of a scrape, and the HTTP
   workers' stream metrics and their sums (:data:`HTTP_COUNTERS`);
@@ -172,7 +172,7 @@ COUNTERS: tuple[Counter, ...] = (
       "sovd_ros_operation_goals_rejected"),
     C("operations", "operation_timeouts", COUNTER, "Service calls, goal and cancel requests not answered "
       "within service_call_timeout", "sovd_ros_operation_timeouts"),
-    # configurations (rosworker/parameters.py); /health shows them as x-medkit-configurations
+    # configurations (rosworker/configurations/clients.py); /health shows them as x-medkit-configurations
     C("details", "parameter_clients", GAUGE, "Nodes with pooled parameter clients now", "sovd_ros_parameter_clients"),
     C("details", "parameter_client_cap", GAUGE, "Most nodes with pooled parameter clients (max_parameter_clients)",
       "sovd_ros_parameter_client_cap", setting="max_parameter_clients"),
@@ -189,7 +189,7 @@ COUNTERS: tuple[Counter, ...] = (
       "sovd_ros_parameter_timeouts"),
     C("details", "parameter_events", COUNTER, "Messages read from /parameter_events",
       "sovd_ros_parameter_events"),
-    # ---- x-medkit-logs: /rosout's ring buffers (issue 22; rosworker/logs.py) ----
+    # ---- x-medkit-logs: /rosout's ring buffers (issue 22; rosworker/logs/book.py) ----
     C("logs", "logs_buffered", GAUGE, "Log lines held in the ring buffers now", "sovd_ros_logs_buffered"),
     C("logs", "logs_bytes", GAUGE, "Bytes of the log lines held now", "sovd_ros_logs_bytes"),
     C("logs", "logs_nodes", GAUGE, "Nodes with a ring buffer now", "sovd_ros_logs_nodes"),
@@ -209,7 +209,7 @@ COUNTERS: tuple[Counter, ...] = (
       setting="log_max_bytes"),
     C("logs", "logs_max_nodes", GAUGE, "Most nodes buffered (log_max_nodes)", "sovd_ros_logs_max_nodes",
       setting="log_max_nodes"),
-    # ---- triggers (rosworker/triggers.py) ----
+    # ---- triggers (rosworker/triggers/registry.py) ----
     C("streams", "active_triggers", GAUGE, "Triggers active now", "sovd_ros_triggers"),
     C("streams", "max_triggers", GAUGE, "Most triggers held at once (max_triggers)", "sovd_ros_triggers_cap",
       setting="max_triggers"),
@@ -230,7 +230,7 @@ FAMILY_HELP = {"sovd_ros_tasks": "ROS tasks run, by outcome"}
 # The second family of a TIMINGS counter: its total time, in seconds.
 TIMINGS_SECONDS = {"sovd_ros_commands": ("sovd_ros_command_seconds",
                                          "Time the ROS thread spent on queued commands, by command")}
-# The causes the ROS worker counts evictions under (rosworker/pool.py), all present from the start.
+# The causes the ROS worker counts evictions under (rosworker/data/pool.py), all present from the start.
 EVICTION_CAUSES = ("graph", "type_change", "lru", "idle", "qos_rebuild", "manual", "shutdown", "bytes")
 
 ROS_COUNTERS = tuple(c for c in COUNTERS if c.origin == ROS)

@@ -46,16 +46,16 @@ CODES: frozenset[str] = frozenset({
     "not-responding",
     "no-such-execution",
     "goals-full",
-    # configurations (rosworker/parameters.py)
+    # configurations (rosworker/configurations/clients.py)
     "node-unavailable",
     "no-such-parameter",
     "no-default",
     "parameter-read-only",
     "invalid-parameter-value",
     "parameter-failed",
-    # faults (rosworker/faults.py)
+    # faults (rosworker/faults/manager.py)
     "no-such-fault",
-    # triggers (rosworker/triggers.py)
+    # triggers (rosworker/triggers/registry.py)
     "no-such-trigger",
     "triggers-full",
 })

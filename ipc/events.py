@@ -33,7 +33,7 @@ INTERVALS = {"fast": 0.05, "normal": 0.2, "slow": 0.5}
 CONTROL_KEY = b"c|"
 HEARTBEAT_KEY = b"h|"
 DATA_PREFIX = b"d|"
-# faults (rosworker/faults.py): ``f|`` + msgpack {"id", "event_type", "fault", "timestamp"}, one per event
+# faults (rosworker/faults/manager.py): ``f|`` + msgpack {"id", "event_type", "fault", "timestamp"}, one per event
 FAULT_KEY = b"f|"
 # Per subscriber: frames queued for a slow HTTP worker beyond this are dropped by ZeroMQ,
 # never buffered without bound (a worker that keeps up holds a handful).
@@ -55,7 +55,7 @@ def data_key(interval: str, mode: str, topic: str) -> bytes:
     return f"d|{interval}|{mode}|{topic}|".encode()
 
 
-# Triggers (rosworker/triggers.py): ``t|e|<id>|`` + msgpack {"ts", "seq", "last"?, "error"?} + the
+# Triggers (rosworker/triggers/registry.py): ``t|e|<id>|`` + msgpack {"ts", "seq", "last"?, "error"?} + the
 # message's JSON, sent only when a trigger fires; ``t|c|<id>|`` + msgpack {"event", "id"} when one
 # is deleted or expires.  HTTP workers subscribe to ``t|c|`` and to the events of their open streams.
 TRIGGER_CONTROL_PREFIX = b"t|c|"

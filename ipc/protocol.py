@@ -35,16 +35,16 @@ COMMANDS = (
     "ping", "stats", "graph", "sample", "subscribe", "evict", "publish", "type_info", "pool",
     "sub_create", "sub_list", "sub_get", "sub_update", "sub_delete",
     "debug_sleep",
-    # operations: services and actions (rosworker/operations.py)
+    # operations: services and actions (rosworker/operations/commands.py)
     "op_list", "op_call", "op_goal", "op_goals", "op_exec", "op_cancel",
-    # configurations (rosworker/parameters.py)
+    # configurations (rosworker/configurations/clients.py)
     "param_list", "param_get", "param_set", "param_reset", "param_reset_all",
-    # faults (rosworker/faults.py)
+    # faults (rosworker/faults/manager.py)
     "fault_list", "fault_get", "fault_clear", "fault_events",
-    "logs", "log_config_get", "log_config_set",  # logs (issue 22): rosworker/logs.py
-    "lifecycle_state",  # GET .../status: a managed node's state (rosworker/lifecycle.py)
+    "logs", "log_config_get", "log_config_set",  # logs (issue 22): rosworker/logs/book.py
+    "lifecycle_state",  # GET .../status: a managed node's state (rosworker/operations/lifecycle.py)
 )
-# Triggers (rosworker/triggers.py).
+# Triggers (rosworker/triggers/registry.py).
 COMMANDS += ("trig_create", "trig_list", "trig_get", "trig_update", "trig_delete", "trig_open")
 # Commands answered from counters by the control thread, without queueing behind ROS work;
 # clients send them to the control socket.

@@ -3,7 +3,7 @@
 The ROS worker serves two ROUTER sockets in its runtime directory:
 
 - ``rosworker.sock`` (work): served by the ROS thread itself
-  (``rosworker/executor.py``), which reads, queues, runs and answers every
+  (``rosworker/core/executor.py``), which reads, queues, runs and answers every
   command there;
 - ``rosworker-ctl.sock`` (control): served by :class:`ControlServer`, a thread
   that never touches rclpy.  It answers ``ping`` and ``stats`` from counters,

@@ -44,10 +44,10 @@ from common import settings as config
 from common.process import package_version
 from ipc.errors import IpcError
 
-from .graph import Endpoints, GraphMonitor, node_names
-from .requestlog import RequestIdFilter
-from .state import RestartState
-from .stats import Stats
+from .core.graph import Endpoints, GraphMonitor, node_names
+from .core.requestlog import RequestIdFilter
+from .core.state import RestartState
+from .core.stats import Stats
 
 EXIT_OK = 0
 EXIT_ORPHANED = 1
@@ -161,11 +161,11 @@ class Worker:
 
         from ipc.server import ControlServer
 
-        from .commands import Commands
-        from .executor import RosExecutor
-        from .pool import TopicPool
-        from .publishers import PublisherPool
-        from .streams import StreamRegistry
+        from .core.executor import RosExecutor
+        from .data.commands import Commands
+        from .data.pool import TopicPool
+        from .data.publishers import PublisherPool
+        from .subscriptions.registry import StreamRegistry
 
         cfg = self.cfg
         try:
@@ -216,7 +216,7 @@ class Worker:
         commands = Commands(pool, graph, publishers, streams, sample_timeout=cfg.sample_timeout,
                             debug=cfg.debug_commands)
         # Operations (services and actions): their commands, upkeep timers and restart record.
-        from .operations import Operations
+        from .operations.commands import Operations
         operations = Operations(node, executor, stats, max_clients=cfg.max_operation_clients,
                                 idle=cfg.idle_safety_net, call_timeout=cfg.service_call_timeout,
                                 max_goals=cfg.max_goals_per_action, retention=cfg.goal_retention,
@@ -224,13 +224,13 @@ class Worker:
         commands.handlers.update(operations.handlers)
         operations.repeat(OPERATIONS_CHECK_EVERY)
         # lifecycle status: managed nodes' get_state, through the operations' service clients
-        from .lifecycle import LifecycleStates
+        from .operations.lifecycle import LifecycleStates
         commands.handlers.update(LifecycleStates(node, operations.services).handlers)
-        # faults: /diagnostics as SOVD faults, kept in the state dir's fault store (rosworker/faults.py)
-        from .faults import FaultManager
-        from .faults import handlers as fault_handlers
-        from .faultstore import FaultStore
-        # the state dir's SQLite store: the faults and the triggers (rosworker/faultstore.py)
+        # faults: /diagnostics as SOVD faults, kept in the state dir's fault store (rosworker/faults/manager.py)
+        from .core.store import FaultStore
+        from .faults.manager import FaultManager
+        from .faults.manager import handlers as fault_handlers
+        # the state dir's SQLite store: the faults and the triggers (rosworker/core/store.py)
         store = FaultStore(cfg.state_dir or config.default_state_dir(os.environ))
         faults = FaultManager(node, executor, pool, stats, store, graph=graph,
                               endpoints=endpoints, send=streams.send,
@@ -241,25 +241,25 @@ class Worker:
         faults.load()
         faults.start()
         # faults left in the store by nodes that are not on the graph: said in the log and /health
-        from .leftfaults import LeftFaults, check_delay
+        from .faults.left import LeftFaults, check_delay
         LeftFaults(faults, graph, stats, executor, check_after=check_delay(cfg.fault_stale_s)).start()
         commands.handlers.update(fault_handlers(faults))
         # What the executor's loop runs: the queued commands, and a look at each topic that
         # callers wait on (its first message) on every round.
-        # logs (issue 22): /rosout's ring buffers and their commands (rosworker/logs.py)
-        from .logs import LogBook
+        # logs (issue 22): /rosout's ring buffers and their commands (rosworker/logs/book.py)
+        from .logs.book import LogBook
         logbook = LogBook(node, executor, stats, buffer_size=cfg.log_buffer_size, max_bytes=cfg.log_max_bytes,
                           max_nodes=cfg.log_max_nodes)
         executor.guarded("subscribing to /rosout", logbook.start)
         commands.handlers.update(logbook.handlers)
-        # Triggers (rosworker/triggers.py): their commands, their rows in the store, restored before discovery.
-        from .triggers import LEGACY_FILE, TriggerRegistry, events_sender
+        # Triggers (rosworker/triggers/registry.py): their commands, their rows in the store, restored before discovery.
+        from .triggers.registry import LEGACY_FILE, TriggerRegistry, events_sender
         legacy = os.path.join((os.environ.get("STATE_DIRECTORY") or "").split(":")[0] or cfg.runtime_dir,
                               LEGACY_FILE)  # where an older gateway kept them
         triggers = TriggerRegistry(node, executor, stats, endpoints, events_sender(streams), store,
                                    max_triggers=cfg.max_triggers, max_per_client=cfg.max_triggers_per_client,
                                    max_bytes=cfg.max_trigger_bytes, legacy_path=legacy)
-        triggers.sources["faults"].bind(faults)  # faults and logs triggers (rosworker/triggersources.py)
+        triggers.sources["faults"].bind(faults)  # faults and logs triggers (rosworker/triggers/sources.py)
         triggers.sources["logs"].bind(logbook)
         triggers.restore(restart=bool(self.restart))
         commands.handlers.update(triggers.handlers)
@@ -280,16 +280,16 @@ class Worker:
             every(cfg.idle_sweep_tick, pool.sweep_idle)
             every(cfg.idle_sweep_tick, publishers.sweep_idle)
         every(STATE_SAVE_EVERY, save_state)
-        # configurations: the nodes' ROS 2 parameters through pooled parameter clients (rosworker/parameters.py)
-        from .parameters import ParameterClients
+        # configurations: the nodes' ROS 2 parameters through pooled parameter clients (rosworker/configurations/clients.py)
+        from .configurations.clients import ParameterClients
         parameters = ParameterClients(node, stats, timeout=cfg.parameter_service_timeout,
                                       negative_cache_s=cfg.parameter_negative_cache_s,
                                       max_clients=cfg.max_parameter_clients, idle_s=cfg.parameter_client_idle_s)
         executor.serve({**commands.handlers, **parameters.handlers()})
         executor.add_poller("parameter clients", parameters.active, parameters.poll)
         every(min(cfg.idle_sweep_tick, 1.0), parameters.sweep_idle)
-        # feeds: cyclic subscriptions on executions and parameters (rosworker/feeds.py)
-        from .feeds import Feeds
+        # feeds: cyclic subscriptions on executions and parameters (rosworker/configurations/feed.py)
+        from .configurations.feed import Feeds
         streams.feeds = Feeds(streams, executor, operations.actions, parameters)
         if rewarm:
             self._rewarm(executor, pool, rewarm, time.monotonic() + REWARM_FOR)

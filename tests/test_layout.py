@@ -155,20 +155,24 @@ def test_every_test_module_lives_in_the_folder_of_what_it_tests():
 
 
 def test_every_dashboard_file_is_declared_package_data():
-    """pyproject.toml: each folder of app/ui is a package of its own with its files as package data
-    (setuptools warns "Package would be ignored" otherwise), and the licence is an SPDX string."""
+    """pyproject.toml: each folder of app/ui is a package (found, as every folder of ours is) with its files
+    as package data (setuptools warns "Package would be ignored" otherwise), and the licence is an SPDX
+    string."""
     import fnmatch
     import tomllib
+
+    from setuptools import find_namespace_packages
 
     project = tomllib.loads((REPO / "pyproject.toml").read_text())
     assert isinstance(project["project"]["license"], str)
     tool = project["tool"]["setuptools"]
+    packages = find_namespace_packages(str(REPO), include=tool["packages"]["find"]["include"])
     undeclared = []
     for path in (REPO / "app" / "ui").rglob("*"):
         if path.is_dir() or "__pycache__" in path.parts:
             continue
         package = ".".join(path.parent.relative_to(REPO).parts)
         patterns = tool["package-data"].get(package, [])
-        if package not in tool["packages"] or not any(fnmatch.fnmatch(path.name, p) for p in patterns):
+        if package not in packages or not any(fnmatch.fnmatch(path.name, p) for p in patterns):
             undeclared.append(str(path.relative_to(REPO)))
     assert not undeclared, f"dashboard files not declared as package data in pyproject.toml: {undeclared}"

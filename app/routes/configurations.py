@@ -6,7 +6,7 @@ was not reset).  On an app the parameter's name is its id; on an entity backed
 by more than one node every id is ``<app_id>:<name>``, and PUT and DELETE refuse
 a bare id (400 ``invalid-request``), as medkit does.
 
-The ROS worker does the ROS part (``rosworker/parameters.py``): each node's
+The ROS worker does the ROS part (``rosworker/configurations/clients.py``): each node's
 parameter services, its timeout (503 ``x-medkit-ros2-node-unavailable``
 with Retry-After) and the record of each node's first-seen values, which is
 what "reset to the default" sets back.  Writes need ``allow_configurations``

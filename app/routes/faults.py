@@ -1,6 +1,6 @@
 """``/faults``: the robot's ``/diagnostics`` as SOVD faults (medkit's fault handlers).
 
-The ROS worker keeps the faults (``rosworker/faults.py``, stored in SQLite);
+The ROS worker keeps the faults (``rosworker/faults/manager.py``, stored in SQLite);
 these routes ask it for them and apply medkit's rules here:
 
 - ``?status=`` as medkit's transport asks its fault manager

@@ -1,6 +1,6 @@
 """``{entity}/logs`` and ``{entity}/logs/configuration``: the robot's ``/rosout``, as medkit serves it.
 
-The lines are held by the ROS worker (``rosworker/logs.py``: a ring buffer per
+The lines are held by the ROS worker (``rosworker/logs/book.py``: a ring buffer per
 node, memory only); so is each entity's configuration, so every HTTP worker
 answers the same.  The rules are medkit's (``log_handlers.cpp``,
 ``log_manager.cpp``):

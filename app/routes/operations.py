@@ -1,7 +1,7 @@
 """``{entity}/operations``: the entity's ROS 2 services and actions, and their executions.
 
 The contract is medkit's (``operation_handlers.cpp``).  Every client and goal
-lives in the ROS worker (``rosworker/operations.py``); this module finds the
+lives in the ROS worker (``rosworker/operations/commands.py``); this module finds the
 operations of an entity (``op_list`` over the nodes of its apps), names them by
 medkit's id rules, and forwards calls, goals and cancels.  Executing and
 cancelling are writes: ``allow_operations`` and the bearer token.

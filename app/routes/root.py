@@ -125,9 +125,9 @@ def health():
         # operations: service and action clients, calls in flight, goals, timeouts (ipc/counters.py)
         "x-medkit-operations": {**counters.health_defaults("operations", config()),
                                 **((stats or {}).get("operations") or {})},
-        # configurations: the parameter clients of the ROS worker (rosworker/parameters.py)
+        # configurations: the parameter clients of the ROS worker (rosworker/configurations/clients.py)
         "x-medkit-configurations": _configurations(stats),
-        "x-medkit-faults": faults_health(stats),  # faults (rosworker/faults.py)
+        "x-medkit-faults": faults_health(stats),  # faults (rosworker/faults/manager.py)
         "x-medkit-logs": _logs_section(stats),  # logs (issue 22)
     })
 
@@ -166,7 +166,7 @@ def _sections(stats: dict[str, Any] | None) -> tuple[dict[str, Any], dict[str, A
     return provider, executor, streams
 
 
-# ---- faults (rosworker/faults.py): /health's x-medkit-faults ------------------------------------------
+# ---- faults (rosworker/faults/manager.py): /health's x-medkit-faults ------------------------------------------
 FAULT_HEALTH_KEYS = ("active", "confirmed", "store_size", "max_faults", "refused", "active_by_severity",
                      "store_enabled", "store_writes", "store_write_errors", "store_pending", "last_write_error",
                      "moved_aside", "diagnostics_arrays", "left_by_absent_nodes", "absent_nodes")

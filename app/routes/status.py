@@ -7,7 +7,7 @@ transition URIs: the transitions, ``PUT .../status/{transition}``, stay 501 in
 
 - An app is ready while its node is in the graph; a managed (lifecycle) node only in the state
   ``active``: the ROS worker reads it through the node's ``get_state`` service (``lifecycle_state``,
-  ``rosworker/lifecycle.py``: its client, its deadline, its negative cache for a node that hangs).
+  ``rosworker/operations/lifecycle.py``: its client, its deadline, its negative cache for a node that hangs).
 - A component: this gateway's only component is the host (medkit's synthetic host component),
   ready while it answers at all.  (medkit's rule for another local component: notReady only when it
   hosts apps and none of them is online; every app here is in the graph.)

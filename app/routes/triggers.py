@@ -5,7 +5,7 @@ POST 201 with the trigger, GET the entity's list or one, PUT its lifetime
 (counted again from now), DELETE 204 (an open stream of it ends at once),
 GET ``.../events`` the stream.  The routes check what a client sends with
 medkit's rules and texts; the triggers live in the ROS worker (``trig_*``
-commands, ``rosworker/triggers.py``), so one made through one HTTP worker is
+commands, ``rosworker/triggers/registry.py``), so one made through one HTTP worker is
 streamed through any other.  Writes ask :func:`authorize_change`, like the
 cyclic subscriptions' (the bearer token when one is set).
 
@@ -41,10 +41,10 @@ bp = Blueprint("triggers", __name__, url_prefix=API_BASE)
 ENTITY = "/<any(apps, components, functions):collection>/<entity_id>"
 CONDITIONS = ("OnChange", "OnChangeTo", "EnterRange", "LeaveRange")
 MAX_LIFETIME = 2**31 - 1
-TARGET_VALUE_MAX = 4096  # bytes of the JSON of an OnChangeTo target_value (rosworker/triggers.py checks it too)
+TARGET_VALUE_MAX = 4096  # bytes of the JSON of an OnChangeTo target_value (rosworker/triggers/registry.py checks it too)
 _TRIGGER_ID = re.compile(r"^trig_[0-9a-f]{16}$")
 _COLLECTION = re.compile(r"^/api/v1/[^/?#]+/[^/?#]+/([^/?#]+)")
-# Collections a trigger may observe here -> the ROS worker's source kind (rosworker/triggers.py SOURCES).
+# Collections a trigger may observe here -> the ROS worker's source kind (rosworker/triggers/registry.py SOURCES).
 OBSERVABLE = {"data": "data", "faults": "faults", "logs": "logs"}  # faults and logs: app/triggerscopes.py
 MEDKIT_COLLECTIONS = ("data", "faults", "operations", "updates", "logs")
 

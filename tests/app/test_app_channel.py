@@ -46,7 +46,7 @@ def test_a_lost_connection_needs_a_new_confirmation_and_a_missing_one_times_out(
 
 
 def test_an_event_sent_right_after_the_confirmation_arrives(tmp_path):
-    """The ROS worker's side in a thread (an XPUB confirming each subscription as rosworker/streams.py
+    """The ROS worker's side in a thread (an XPUB confirming each subscription as rosworker/subscriptions/registry.py
     does, then the event at once); the HTTP worker's side a green SUB that waits as a stream does."""
     zctx = plain_zmq.Context()
     pub = bind_publisher(zctx, str(tmp_path))

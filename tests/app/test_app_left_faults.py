@@ -1,4 +1,4 @@
-"""Faults left in the store by nodes that are not on the graph (rosworker/leftfaults.py): a gateway
+"""Faults left in the store by nodes that are not on the graph (rosworker/faults/left.py): a gateway
 that opens a state dir an earlier run wrote says so, in its log and in /health, until the node is back."""
 
 from __future__ import annotations

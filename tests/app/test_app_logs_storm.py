@@ -1,7 +1,7 @@
 """A /rosout storm and the logs' caps, through a real gateway with real logging nodes.
 
 A node writes 10,000 lines a second for a few seconds: the ROS worker takes
-at most ``TAKES_PER_ROUND`` lines a round (rosworker/logs.py), so its CPU and
+at most ``TAKES_PER_ROUND`` lines a round (rosworker/logs/book.py), so its CPU and
 memory stay bounded and ``/health`` keeps answering.  The per-node, byte and
 node caps hold, and what they push out or drop is counted.  The bounds are
 generous: they catch a runaway or a hang, not a slow machine (timings are the

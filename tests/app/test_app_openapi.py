@@ -241,7 +241,7 @@ def test_every_route_answers_per_the_document(doc):
                 r = client.open(path, method=method, **kw)
                 check(doc, method, path, r)
                 seen.setdefault(operation(doc, method, path)[0], set()).add(r.status_code)
-        # faults (issue 22): app/routes/faults.py, over the ROS worker's answers (rosworker/faults.py::public)
+        # faults (issue 22): app/routes/faults.py, over the ROS worker's answers (rosworker/faults/manager.py::public)
         fault = {"fault_code": "TEMP_SENSOR_HOT", "severity": 2, "severity_label": "ERROR", "description": "hot",
                  "first_occurred": 1700000000.5, "last_occurred": 1700000001.5, "occurrence_count": 1,
                  "status": "CONFIRMED", "reporting_sources": ["/powertrain/engine/temp_sensor"]}

@@ -20,7 +20,7 @@ import zmq
 from ipc import events, protocol
 from ipc.client import RosWorkerClient
 from ipc.server import ControlServer, LockHeld, RuntimeLock, bind_publisher
-from rosworker.stats import Stats
+from rosworker.core.stats import Stats
 from tests.support.procs import poll_until
 
 HOLD = """

@@ -40,16 +40,16 @@ from std_msgs.msg import (
 from unique_identifier_msgs.msg import UUID
 
 from ipc.topics import MESSAGE_TYPE as TYPE_RE
-from rosworker.decode import from_plain
-from rosworker.encode import to_json, to_plain
-from rosworker.msgtypes import (
+from rosworker.ros.decode import from_plain
+from rosworker.ros.encode import to_json, to_plain
+from rosworker.ros.msgtypes import (
     ConversionError,
     _plan,
     check_type_name,
     load_type,
     type_name,
 )
-from rosworker.schema import _schema, default_value, schema
+from rosworker.ros.schema import _schema, default_value, schema
 
 
 def roundtrip_wire(msg):

@@ -1,4 +1,4 @@
-"""rosworker/commands.py: what a command's arguments may be, checked at the ROS worker's boundary."""
+"""rosworker/data/commands.py: what a command's arguments may be, checked at the ROS worker's boundary."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from rclpy.validate_full_topic_name import validate_full_topic_name
 
 from app.errors import ApiError
 from ipc.errors import IpcError
-from rosworker.commands import middleware_names
+from rosworker.data.commands import middleware_names
 from tests.support.rosworker import RosWorker
 
 

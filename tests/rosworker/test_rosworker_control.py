@@ -1,4 +1,4 @@
-"""The ROS worker's control thread and the counters it reads (``ipc/server.py``, ``rosworker/stats.py``).
+"""The ROS worker's control thread and the counters it reads (``ipc/server.py``, ``rosworker/core/stats.py``).
 
 ``stats`` is answered by the control thread from counters the ROS thread
 writes.  A snapshot taken while the ROS thread counts a command name it has
@@ -24,7 +24,7 @@ from app.errors import ApiError
 from ipc.client import RosWorkerClient
 from ipc.errors import IpcError
 from ipc.server import ControlServer
-from rosworker.stats import Stats
+from rosworker.core.stats import Stats
 
 NEW_NAMES = 2000  # command names the "ROS thread" counts for the first time
 REPEATS = 50      # commands counted under names it has seen, after each new one

@@ -344,9 +344,9 @@ def test_a_failed_qos_rebuild_keeps_the_old_subscription(tmp_path):
     """A unit test with a fake node: the new subscription is made before the old one goes."""
     from rclpy.qos import ReliabilityPolicy
 
-    from rosworker.executor import RosExecutor
-    from rosworker.pool import TopicPool
-    from rosworker.stats import Stats
+    from rosworker.core.executor import RosExecutor
+    from rosworker.core.stats import Stats
+    from rosworker.data.pool import TopicPool
 
     stats = Stats(pool_cap=4, cold_wait_cap=4, watchdog_threshold_ms=5000)
     ctx = zmq.Context()
@@ -373,8 +373,8 @@ def test_a_failed_qos_rebuild_keeps_the_old_subscription(tmp_path):
 
 def test_a_poller_runs_every_round_only_while_active_and_a_failure_is_contained(tmp_path):
     """add_poller: polled at the cold-poll pace while active; idle costs nothing; errors counted."""
-    from rosworker.executor import COLD_POLL, RosExecutor
-    from rosworker.stats import Stats
+    from rosworker.core.executor import COLD_POLL, RosExecutor
+    from rosworker.core.stats import Stats
 
     stats = Stats(pool_cap=4, cold_wait_cap=4, watchdog_threshold_ms=5000)
     ctx = zmq.Context()

@@ -16,9 +16,9 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
 from ipc import events, protocol
-from rosworker import faults as mod
-from rosworker.faults import FaultManager, fault_code, parse_codes, parse_snapshot_topics
-from rosworker.faultstore import FaultStore
+from rosworker.core.store import FaultStore
+from rosworker.faults import manager as mod
+from rosworker.faults.manager import FaultManager, fault_code, parse_codes, parse_snapshot_topics
 
 
 class Stats:
@@ -288,7 +288,7 @@ def test_an_unwritable_state_dir_keeps_faults_in_memory(tmp_path):
 
 
 def test_a_failed_write_is_counted_and_retried(tmp_path, monkeypatch):
-    monkeypatch.setattr("rosworker.faultstore.RETRY_AFTER", 0.05)
+    monkeypatch.setattr("rosworker.core.store.RETRY_AFTER", 0.05)
     store = FaultStore(str(tmp_path))
     store.load()
     store.start()

@@ -1,4 +1,4 @@
-"""rosworker/feeds.py with its collaborators faked: the frames of an execution's and a parameter's feed.
+"""rosworker/configurations/feed.py with its collaborators faked: the frames of an execution's and a parameter's feed.
 
 The same behaviour through the real gateway, action server and parameter node is
 tests/system/test_feeds.py; this pins the ordering rules that a real run hits only by chance
@@ -14,10 +14,10 @@ import pytest
 from rcl_interfaces.msg import Parameter, ParameterEvent, ParameterType, ParameterValue
 
 from ipc.errors import IpcError
-from rosworker import feeds as feeds_mod
-from rosworker.executor import Timer
-from rosworker.feeds import Feeds
-from rosworker.streams import Subscription
+from rosworker.configurations import feed as feeds_mod
+from rosworker.configurations.feed import Feeds
+from rosworker.core.executor import Timer
+from rosworker.subscriptions.registry import Subscription
 
 
 class Executor:

@@ -1,4 +1,4 @@
-"""rosworker/graph.py: change detection (fingerprint, ``generation``, ``epoch``), the pool's re-checks,
+"""rosworker/core/graph.py: change detection (fingerprint, ``generation``, ``epoch``), the pool's re-checks,
 the cached ``graph`` snapshot, and ``node_names``.
 
 In-process, against a fake node (``tests/support/rosunit.py``) and a pool that
@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import pytest
 
-from rosworker import graph as graph_mod
-from rosworker.graph import GraphMonitor, node_names
-from rosworker.stats import Stats
+from rosworker.core import graph as graph_mod
+from rosworker.core.graph import GraphMonitor, node_names
+from rosworker.core.stats import Stats
 from tests.support.rosunit import FakeNode
 
 TEMP = ("/engine/temperature", "sensor_msgs/msg/Temperature")

@@ -1,4 +1,4 @@
-"""rosworker/logs.py on its own: the CDR reader against rclpy's serializer, the caps, queries and commands.
+"""rosworker/logs/book.py on its own: the CDR reader against rclpy's serializer, the caps, queries and commands.
 
 The same behaviour through a real gateway and real nodes: tests/app/test_app_logs.py and
 tests/app/test_app_logs_storm.py.
@@ -13,8 +13,8 @@ from rcl_interfaces.msg import Log
 from rclpy.serialization import deserialize_message, serialize_message
 
 from ipc.errors import IpcError
-from rosworker.logs import MAX_TEXT, LogBook, parse_log
-from rosworker.stats import Stats
+from rosworker.core.stats import Stats
+from rosworker.logs.book import MAX_TEXT, LogBook, parse_log
 
 
 class Task:

@@ -1,4 +1,4 @@
-"""rosworker/operations.py's pure parts: which services are operations, interface types, the restart
+"""rosworker/operations/commands.py's pure parts: which services are operations, interface types, the restart
 record.  The clients themselves are tested through the real gateway (tests/system/test_operations*.py)."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ import json
 import pytest
 
 from ipc.errors import IpcError
-from rosworker import operations
-from rosworker.actions import Goal
+from rosworker.operations import commands as operations
+from rosworker.operations.actions import Goal
 
 
 def test_node_operations_leave_out_parameter_type_description_and_hidden_action_services():

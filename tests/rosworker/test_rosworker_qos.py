@@ -9,7 +9,7 @@ import orjson
 import pytest
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from rosworker import qos
+from rosworker.ros import qos
 from tests.support.procs import RosNode, poll_until, publisher, unique_topic
 from tests.support.rosworker import RosWorker
 

@@ -1,4 +1,4 @@
-"""rosworker/state.py: the restart state's file (round trip, mode, damage), its writer thread, discard.
+"""rosworker/core/state.py: the restart state's file (round trip, mode, damage), its writer thread, discard.
 
 Real files in a temporary runtime dir and the real writer thread.  That a
 restarted ROS worker keeps its pool and its subscriptions through this file is
@@ -15,8 +15,8 @@ import threading
 
 import pytest
 
-from rosworker import state as state_mod
-from rosworker.state import RestartState
+from rosworker.core import state as state_mod
+from rosworker.core.state import RestartState
 from tests.support.procs import poll_until
 
 SUB_A = {"id": "sub_a", "topic": "/a", "interval": "fast", "expires_at_ns": 1}

@@ -1,4 +1,4 @@
-"""rosworker/stats.py: the shape of ``snapshot()`` (what ``stats`` answers), and the counters behind it.
+"""rosworker/core/stats.py: the shape of ``snapshot()`` (what ``stats`` answers), and the counters behind it.
 
 In-process.  What the HTTP side makes of a snapshot (``/health``, ``/metrics``)
 is checked in tests/app/test_app_root.py and tests/app/test_app_metrics.py, and a real
@@ -11,7 +11,7 @@ from __future__ import annotations
 import time
 
 from ipc import counters
-from rosworker.stats import Stats
+from rosworker.core.stats import Stats
 
 SECTIONS = set(counters.SECTIONS)  # the declared sections, each in the answer
 NOT_REPORTED = {"watchdog_threshold_ms", "current_task_started"}  # a setting, and a clock reading

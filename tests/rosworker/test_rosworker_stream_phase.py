@@ -1,4 +1,4 @@
-"""rosworker/streams.py: tick phase per topic (issue 23).
+"""rosworker/subscriptions/registry.py: tick phase per topic (issue 23).
 
 A topic's ticks follow its messages' arrivals (the received stamp a take gives),
 and the cadence does not change: one frame per interval with the latest value,
@@ -17,7 +17,7 @@ import time
 import pytest
 
 from ipc import events
-from rosworker import streams as streams_module
+from rosworker.subscriptions import registry as streams_module
 from tests.rosworker.test_rosworker_streams import TOPIC, TYPE, FakePool, Setup
 from tests.support.rosunit import RosThread
 

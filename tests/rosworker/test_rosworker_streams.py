@@ -1,4 +1,4 @@
-"""rosworker/streams.py: the cyclic-subscription registry and the frames its ticks publish.
+"""rosworker/subscriptions/registry.py: the cyclic-subscription registry and the frames its ticks publish.
 
 In-process: a real ROS thread (``RosExecutor``'s loop, its timers), the real
 graph monitor over a fake node, the real events socket read by a real SUB
@@ -20,8 +20,8 @@ import zmq
 from app.errors import ApiError
 from ipc import events, protocol
 from ipc.errors import IpcError
-from rosworker.graph import GraphMonitor
-from rosworker.streams import StreamRegistry
+from rosworker.core.graph import GraphMonitor
+from rosworker.subscriptions.registry import StreamRegistry
 from tests.support.procs import poll_until
 from tests.support.rosunit import FakeNode, RosThread
 

@@ -1,4 +1,4 @@
-"""The trigger conditions and JSON Pointers, value by value (rosworker/triggers.py, ipc/jsonpointer.py).
+"""The trigger conditions and JSON Pointers, value by value (rosworker/triggers/registry.py, ipc/jsonpointer.py).
 
 What they do on real messages through a real gateway is tests/app/test_app_trigger_streams.py.
 """
@@ -13,10 +13,10 @@ from hypothesis import strategies as st
 
 from ipc import jsonpointer
 from ipc.errors import IpcError
-from rosworker.triggers import check_condition, fires, in_range, same
+from rosworker.triggers.registry import check_condition, fires, in_range, same
 
 MISSING = jsonpointer.MISSING
-NAN = "NaN"  # how a message's NaN reads in its JSON (rosworker/encode.py)
+NAN = "NaN"  # how a message's NaN reads in its JSON (rosworker/ros/encode.py)
 
 
 def run(condition: dict, values: list) -> list[bool]:

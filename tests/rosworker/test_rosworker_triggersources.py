@@ -1,4 +1,4 @@
-"""Faults and logs trigger sources, event by event (rosworker/triggersources.py).
+"""Faults and logs trigger sources, event by event (rosworker/triggers/sources.py).
 
 The registry is a stand-in that records what fires (a collaborator); the log
 book is the real one (its ``add``, no subscription).  Through a real gateway
@@ -15,10 +15,10 @@ import orjson
 import pytest
 
 from ipc.errors import IpcError
-from rosworker.logs import LogBook
-from rosworker.stats import Stats
-from rosworker.triggers import SOURCES, Trigger
-from rosworker.triggersources import FaultSource, LogSource, in_scope, parse_target
+from rosworker.core.stats import Stats
+from rosworker.logs.book import LogBook
+from rosworker.triggers.registry import SOURCES, Trigger
+from rosworker.triggers.sources import FaultSource, LogSource, in_scope, parse_target
 
 
 class Registry:

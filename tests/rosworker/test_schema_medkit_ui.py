@@ -20,7 +20,7 @@ from sensor_msgs.msg import BatteryState, Image, LaserScan, Temperature
 from std_msgs.msg import Bool, Float32, Float64MultiArray, String
 from test_msgs.action import Fibonacci
 
-from rosworker.schema import schema
+from rosworker.ros.schema import schema
 
 # ---- src/lib/schema-utils.ts ----------------------------------------------------------------------
 PRIMITIVES = ("bool", "boolean", "int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64",

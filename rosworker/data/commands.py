@@ -25,13 +25,13 @@ from ipc.errors import IpcError
 from ipc.protocol import BYTES_MODES
 from ipc.topics import InvalidTopic, normalize_topic
 
-from . import msgtypes
-from .executor import Task
-from .graph import GraphMonitor
+from ..core.executor import Task
+from ..core.graph import GraphMonitor
+from ..ros import msgtypes
+from ..ros.schema import default_value, schema
+from ..subscriptions.registry import StreamRegistry
 from .pool import TopicPool
 from .publishers import PublisherPool
-from .schema import default_value, schema
-from .streams import StreamRegistry
 
 
 def _topic(args: dict) -> str:
@@ -162,7 +162,7 @@ class Commands:
         mode = _string(task.args, "bytes", BYTES_MODES)
         # The client's address (the per-client cap); absent from an older HTTP side or a probe.
         client = _string(task.args, "client", limit=256) if task.args.get("client") is not None else ""
-        kind = task.args.get("kind", "data")  # feeds: an execution or a parameter (rosworker/feeds.py)
+        kind = task.args.get("kind", "data")  # feeds: an execution or a parameter (rosworker/configurations/feed.py)
         if kind != "data":
             if self.streams.feeds is None:
                 raise IpcError("bad-request", "kind: this ROS worker streams topics only")

@@ -2,7 +2,7 @@
 
 A subscription on ``operations/{op_id}/executions/{exec_id}`` (kind
 ``execution``) or on ``configurations/{param_id}`` (kind ``parameter``) is kept
-by the stream registry (``rosworker/streams.py``) like one on a topic: the same
+by the stream registry (``rosworker/subscriptions/registry.py``) like one on a topic: the same
 caps, expiry, updates, restart state and control events.  Its frames are its
 own: one timer per subscription at its interval, and one frame per tick under
 its own key (``d|<interval>|<kind>|<subscription id>|``), meta ``{"ts", "kind",
@@ -36,8 +36,8 @@ from typing import Any
 from ipc import events
 from ipc.errors import IpcError
 
-from .executor import RosExecutor, Timer
-from .parameters import type_name, value_json
+from ..core.executor import RosExecutor, Timer
+from .clients import type_name, value_json
 
 FINISHED_LINGER = 5.0  # seconds a finished goal's last frame is repeated before its subscription ends
 RESYNC = 10.0          # seconds between two reads of a streamed parameter (events carry the changes between)

@@ -43,11 +43,11 @@ from rclpy.serialization import deserialize_message
 
 from ipc.errors import IpcError
 
-from . import msgtypes, qos
-from .encode import to_json
-from .executor import RosExecutor, Task, Timer
-from .graph import Endpoints
-from .stats import Stats
+from ..core.executor import RosExecutor, Task, Timer
+from ..core.graph import Endpoints
+from ..core.stats import Stats
+from ..ros import msgtypes, qos
+from ..ros.encode import to_json
 
 log = logging.getLogger("sovd.rosworker.pool")
 

@@ -60,8 +60,8 @@ from rclpy.qos import qos_profile_parameter_events, qos_profile_parameters
 
 from ipc.errors import IpcError
 
-from .executor import Task
-from .stats import Stats
+from ..core.executor import Task
+from ..core.stats import Stats
 
 log = logging.getLogger("sovd.rosworker.parameters")
 
@@ -372,7 +372,7 @@ class ParameterClients:
         self._unavailable: dict[str, tuple[float, Any]] = {}
         self._records: collections.OrderedDict[str, Record] = collections.OrderedDict()
         self._events = None
-        # cyclic subscriptions on parameters (rosworker/feeds.py): called with each /parameter_events message
+        # cyclic subscriptions on parameters (rosworker/configurations/feed.py): called with each /parameter_events message
         self.listeners: list[Callable[[Any], None]] = []
         stats.parameter_client_cap = max_clients
 
@@ -847,7 +847,7 @@ class ParameterClients:
                 return
             event = taken[0]
             self.stats.parameter_events += 1
-            for listener in self.listeners:  # cyclic subscriptions on parameters (rosworker/feeds.py)
+            for listener in self.listeners:  # cyclic subscriptions on parameters (rosworker/configurations/feed.py)
                 listener(event)
             record = self._records.get(event.node)
             if record is None or not event.new_parameters:

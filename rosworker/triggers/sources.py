@@ -1,6 +1,6 @@
 """Faults and logs as observable resources of triggers (medkit's ``faults`` and ``logs`` collections).
 
-Two more kinds of :data:`rosworker.triggers.SOURCES`, event-driven: no
+Two more kinds of :data:`rosworker.triggers.registry.SOURCES`, event-driven: no
 subscription and no polling of their own (``active`` is always false).  The
 fault manager (``faults.py``) calls :meth:`FaultSource.on_fault` on each fault
 event, and the log book (``logs.py``) :meth:`LogSource.on_line` on each line it
@@ -77,7 +77,7 @@ class _EventSource:
 
     def __init__(self, registry):
         # Imported here, not at the top: triggers.py imports this module at its end.
-        from .triggers import fires
+        from .registry import fires
 
         self.registry = registry
         self.stats = registry.stats
@@ -170,7 +170,7 @@ class LogSource(_EventSource):
         self.by_logger: dict[str, list] = {}   # logger name (slash and dot form) -> its triggers
 
     def _indexed(self) -> None:
-        from .logs import names_of
+        from ..logs.book import names_of
 
         index: dict[str, list] = {}
         for trigger in self.triggers:

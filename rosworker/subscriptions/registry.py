@@ -60,7 +60,7 @@ state, where the wall clock is the clock the next worker shares.
 Saving: each subscription's restart record (its JSON) is made once, when it
 is created or changed; after a change ``save()`` hands the list of records
 (a copy of references, not a serialisation) to the restart state's writer
-thread (``rosworker/state.py``), and a command that changed the registry is
+thread (``rosworker/core/state.py``), and a command that changed the registry is
 answered once the writer has written it (``when_saved``: ``save(then)``): a
 subscription that was answered survives a ROS worker killed right after, and
 the ROS thread's cost of a change does not grow with the registry.
@@ -83,10 +83,10 @@ from ipc import events, protocol
 from ipc.errors import IpcError
 from ipc.server import bind_publisher, send_frames
 
-from .executor import RosExecutor, Timer
-from .graph import GraphMonitor
-from .pool import TopicPool
-from .stats import Stats
+from ..core.executor import RosExecutor, Timer
+from ..core.graph import GraphMonitor
+from ..core.stats import Stats
+from ..data.pool import TopicPool
 
 log = logging.getLogger("sovd.rosworker.streams")
 
@@ -130,7 +130,7 @@ class Subscription:
     duration: int
     created_at_ns: int
     client: str = ""        # the client address that made it ("" when the HTTP side did not say)
-    # feeds (rosworker/feeds.py): "data" (a topic), "execution" or "parameter", and what it names
+    # feeds (rosworker/configurations/feed.py): "data" (a topic), "execution" or "parameter", and what it names
     kind: str = "data"
     target: dict[str, Any] = field(default_factory=dict)
     deadline: float = field(default=0.0, compare=False)  # time.monotonic() at which it expires
@@ -155,7 +155,7 @@ class Subscription:
 
     @property
     def key(self) -> bytes:
-        if self.kind != "data":  # a feed's frames are its own (rosworker/feeds.py)
+        if self.kind != "data":  # a feed's frames are its own (rosworker/configurations/feed.py)
             return events.data_key(self.interval, self.kind, self.id)
         return events.data_key(self.interval, self.bytes, self.topic)
 
@@ -208,7 +208,7 @@ class StreamRegistry:
         self.max_duration = max_duration
         self.sample_timeout = sample_timeout
         self.subs: dict[str, Subscription] = {}
-        self.feeds: Any = None  # executions' and parameters' subscriptions (rosworker/feeds.py), set by main
+        self.feeds: Any = None  # executions' and parameters' subscriptions (rosworker/configurations/feed.py), set by main
         self._records: dict[str, bytes] = {}  # id -> Subscription.record(), made when it changes
         self.version = 0                      # bumped at each change of the registry
         self.per_client: dict[str, int] = {}
@@ -249,7 +249,7 @@ class StreamRegistry:
             if not isinstance(expires_at_ns, int) or isinstance(expires_at_ns, bool):
                 continue
             sub.deadline = (expires_at_ns - offset) / 1e9  # the wall clock is the one both workers share
-            if sub.kind != "data" and self.feeds is None:  # feeds (rosworker/feeds.py) not served here
+            if sub.kind != "data" and self.feeds is None:  # feeds (rosworker/configurations/feed.py) not served here
                 continue
             if sub.deadline > time.monotonic() and sub.interval in events.INTERVALS \
                     and len(self.subs) < self.max_subscriptions and self._held_by(sub.client) < self.max_per_client:
@@ -348,7 +348,7 @@ class StreamRegistry:
         self._remove(self.get(collection, entity_id, sub_id), "deleted")
 
     def end(self, sub: Subscription) -> None:
-        """A feed's subscription whose resource finished (rosworker/feeds.py): it ends as an expiry does."""
+        """A feed's subscription whose resource finished (rosworker/configurations/feed.py): it ends as an expiry does."""
         if self.subs.get(sub.id) is sub:
             self._remove(sub, "expired")
 
@@ -571,7 +571,7 @@ class StreamRegistry:
                 self.stats.subscriptions_confirmed += 1
                 self._send([message[1:]])
 
-    # Other pieces (faults: rosworker/faults.py; triggers: rosworker/triggers.py) send their events
+    # Other pieces (faults: rosworker/faults/manager.py; triggers: rosworker/triggers/registry.py) send their events
     # on this channel too.
     def send(self, frames: list[bytes]) -> None:
         """Publish ``frames`` (a key, then its parts) on the events channel (ROS thread; never blocks;

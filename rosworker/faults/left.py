@@ -25,7 +25,7 @@ from __future__ import annotations
 import logging
 from typing import Any
 
-from .faults import ACTIVE, TOPIC
+from .manager import ACTIVE, TOPIC
 
 log = logging.getLogger("sovd.rosworker.faults")
 

@@ -36,12 +36,12 @@ from typing import Any
 from common.process import write_atomic
 from ipc.errors import IpcError
 
+from ..core.executor import RosExecutor, Task
+from ..core.stats import Stats
+from ..ros.msgtypes import ConversionError, _is_message_class
+from ..ros.schema import default_value, schema
 from .actions import ActionClients, Goal
-from .executor import RosExecutor, Task
-from .msgtypes import ConversionError, _is_message_class
-from .schema import default_value, schema
 from .services import ServiceClients
-from .stats import Stats
 
 log = logging.getLogger("sovd.rosworker.operations")
 

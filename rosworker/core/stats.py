@@ -4,7 +4,7 @@ Which counters there are, their kinds and sections, is declared once in
 ``ipc/counters.py``; this class holds the values of those the ROS worker counts.
 
 Counters are plain attributes written by the ROS thread, which also reads the
-work socket and keeps the queue (``rosworker/executor.py``), and by the
+work socket and keeps the queue (``rosworker/core/executor.py``), and by the
 control thread (the frames it drops; the watchdog sets ``degraded`` and
 counts ``watchdog_trips``, the ROS thread clears ``degraded``).  There is no
 lock: each store is one attribute under the GIL, and ``ipc_dropped_frames``,
@@ -45,8 +45,8 @@ class Stats:
         self.ticks: dict[str, int] = {}  # stream timer rounds by interval
         self.phase_changes = 0  # tick phase per topic: times a topic's ticks were phased to its arrivals
         self.current_task_started = 0.0  # monotonic; 0 while idle
-        self.faults: dict = {}  # faults: /health's x-medkit-faults, replaced whole (rosworker/faults.py)
-        self.faults_left: dict = {}  # ... and its faults left by absent nodes (rosworker/leftfaults.py)
+        self.faults: dict = {}  # faults: /health's x-medkit-faults, replaced whole (rosworker/faults/manager.py)
+        self.faults_left: dict = {}  # ... and its faults left by absent nodes (rosworker/faults/left.py)
 
     def task_started(self) -> float:
         now = time.monotonic()
@@ -110,6 +110,6 @@ class Stats:
                     part[key] = self.current_task_age_ms()
                 else:
                     part[key] = getattr(self, key)
-        if self.faults:  # faults (rosworker/faults.py): a dict replaced whole, never changed in place
+        if self.faults:  # faults (rosworker/faults/manager.py): a dict replaced whole, never changed in place
             answer["faults"] = {**self.faults, **self.faults_left}
         return answer

@@ -20,7 +20,7 @@ time but the status already shows the goal cancelling (or cancelled), the
 cancel counts as accepted; otherwise the outcome is unknown (``not-responding``).
 
 Restart: :attr:`ActionClients.on_change` is called (ROS thread) after a goal
-starts or finishes; ``rosworker/operations.py`` saves the running goals off
+starts or finishes; ``rosworker/operations/commands.py`` saves the running goals off
 this thread so that a restarted worker can say what became of them.
 """
 
@@ -36,11 +36,11 @@ from typing import Any
 
 from ipc.errors import IpcError
 
-from .decode import from_plain
-from .encode import to_plain
-from .executor import RosExecutor, Task
-from .msgtypes import ConversionError
-from .stats import Stats
+from ..core.executor import RosExecutor, Task
+from ..core.stats import Stats
+from ..ros.decode import from_plain
+from ..ros.encode import to_plain
+from ..ros.msgtypes import ConversionError
 
 log = logging.getLogger("sovd.rosworker.actions")
 

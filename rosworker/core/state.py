@@ -13,7 +13,7 @@ of the subscriptions, and every ``STATE_SAVE_EVERY`` for the pool); that only
 puts the state in one slot (the latest wins: states submitted while a write
 runs are coalesced into the next one) and wakes the writer thread, which
 serialises and writes it.  The subscriptions arrive as their JSON records,
-made once per change of each (``rosworker/streams.py``), so the ROS thread's
+made once per change of each (``rosworker/subscriptions/registry.py``), so the ROS thread's
 cost of a change does not grow with the registry.  ``submit``'s ``then``
 (a command's reply) is handed back to the ROS thread through ``post`` once a
 state at least as new is written.  Before :meth:`start` and after

@@ -2,7 +2,7 @@
 
 The schema describes what ``encode.py`` writes and ``decode.py`` accepts, per byte-array mode;
 it is built once per class and mode, and each caller gets a fresh copy.  Runs on the ROS thread
-(``rosworker/commands.py``).
+(``rosworker/data/commands.py``).
 """
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ per node), so it is built only when asked, once per generation.
 
 The names of the last poll (``topics``) and ``epoch`` (bumped at each full
 re-check) let a stream's tick answer a topic nobody publishes without asking
-the graph (``rosworker/streams.py``): a name that is not in ``topics`` has no
+the graph (``rosworker/subscriptions/registry.py``): a name that is not in ``topics`` has no
 endpoint at all, and its answer only changes with ``generation``.
 
 :class:`Endpoints` lists a topic's publishers and subscribers without the
@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 from .stats import Stats
 
 if TYPE_CHECKING:  # the pool imports Endpoints from here
-    from .pool import TopicPool
+    from ..data.pool import TopicPool
 
 log = logging.getLogger("sovd.rosworker.graph")
 

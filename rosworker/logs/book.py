@@ -42,8 +42,8 @@ from typing import Any
 
 from ipc.errors import IpcError
 
-from .executor import RosExecutor, Task
-from .stats import Stats
+from ..core.executor import RosExecutor, Task
+from ..core.stats import Stats
 
 log = logging.getLogger("sovd.rosworker.logs")
 
@@ -138,7 +138,7 @@ class LogBook:
         self.configs: dict[str, dict[str, Any]] = {}
         self.sub = None
         self._cls = None
-        # logs triggers: set by rosworker/triggersources.py while a trigger watches logs, else None
+        # logs triggers: set by rosworker/triggers/sources.py while a trigger watches logs, else None
         self.trigger_hook: Callable[[Entry], None] | None = None
         stats.logs_buffer_size = buffer_size
         stats.logs_max_bytes = max_bytes

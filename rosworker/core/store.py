@@ -4,12 +4,12 @@
 committed write survives a killed process and a power cut) holds three tables:
 
 - ``faults``: one row per fault code, its record as a JSON document
-  (``rosworker/faults.py`` owns the record's fields);
+  (``rosworker/faults/manager.py`` owns the record's fields);
 - ``events``: the fault stream's last ``MAX_EVENTS`` events by id, so that a
   client reconnecting with ``Last-Event-ID`` is answered from here, even after
   a restart;
 - ``triggers``: one row per trigger, its record as a JSON document
-  (``rosworker/triggers.py`` owns it): a change writes that one row, never the
+  (``rosworker/triggers/registry.py`` owns it): a change writes that one row, never the
   whole set.
 
 The file, its ``-wal`` and ``-shm`` are the service user's alone (0600: freeze

@@ -2,7 +2,7 @@
 
 An HTTP worker sends the id of the request it serves in the IPC envelope
 (``request_id``, ``ipc/PROTOCOL.md``).  The ROS thread binds it with
-:func:`bound` while it runs that command (``rosworker/executor.py``) and while
+:func:`bound` while it runs that command (``rosworker/core/executor.py``) and while
 it answers it, which for a cold sample is later, when the first message came.
 :class:`RequestIdFilter`, on the worker's log handler (``rosworker/main.py``),
 adds `` [request <id>]`` to every line written meanwhile, so that

@@ -23,11 +23,11 @@ from typing import Any
 
 from ipc.errors import IpcError
 
-from .decode import from_plain
-from .encode import to_plain
-from .executor import RosExecutor, Task
-from .msgtypes import ConversionError
-from .stats import Stats
+from ..core.executor import RosExecutor, Task
+from ..core.stats import Stats
+from ..ros.decode import from_plain
+from ..ros.encode import to_plain
+from ..ros.msgtypes import ConversionError
 
 log = logging.getLogger("sovd.rosworker.services")
 

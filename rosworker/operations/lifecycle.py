@@ -5,7 +5,7 @@ offers a ``lifecycle_msgs/srv/GetState`` and a ``lifecycle_msgs/srv/ChangeState`
 managed node, and it is ready only in the state labelled ``active``; any other node in the graph is
 ready.  This module answers the first part: is the node managed, and if so its state's label.
 
-The ``get_state`` call is the operations' (``rosworker/services.py``): a pooled client, the request
+The ``get_state`` call is the operations' (``rosworker/operations/services.py``): a pooled client, the request
 sent on the ROS thread and its answer taken by the executor's poller, never waited on.  It has
 ``STATE_TIMEOUT`` s in all (a new client's matching included; medkit's reader: half a second for the
 service to show, half a second for the answer), less when the request's deadline is nearer.  A node
@@ -23,8 +23,8 @@ from typing import Any
 
 from ipc.errors import IpcError
 
-from .executor import Task
-from .operations import load_interface
+from ..core.executor import Task
+from .commands import load_interface
 from .services import SETTLE, ServiceClients
 
 GET_STATE = "lifecycle_msgs/srv/GetState"

@@ -76,7 +76,7 @@ from ipc import events as channel
 from ipc import protocol
 from ipc.errors import IpcError
 
-from .faultstore import MAX_EVENTS, FaultStore
+from ..core.store import MAX_EVENTS, FaultStore
 
 log = logging.getLogger("sovd.rosworker.faults")
 
@@ -193,7 +193,7 @@ class FaultManager:
         self.arrays = 0
         self.refused = 0
         self._drained = time.monotonic()  # the last moment the subscription's queue was seen empty
-        # faults triggers: set by rosworker/triggersources.py while a trigger watches faults, else None
+        # faults triggers: set by rosworker/triggers/sources.py while a trigger watches faults, else None
         self.trigger_hook: Callable[[str, dict[str, Any]], None] | None = None
         self._publish_stats()
 
@@ -219,7 +219,7 @@ class FaultManager:
     def start(self) -> None:
         from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-        from . import msgtypes
+        from ..ros import msgtypes
 
         self.store.start()
         self.executor.call_later(TICK_EVERY, self._tick_round)
@@ -556,7 +556,7 @@ class FaultManager:
             if record["status"] == CONFIRMED:
                 confirmed += 1
         store = self.store
-        self.stats.faults = {  # replaced whole: the control thread reads it (rosworker/stats.py)
+        self.stats.faults = {  # replaced whole: the control thread reads it (rosworker/core/stats.py)
             "active": active, "confirmed": confirmed, "store_size": len(self.faults),
             "max_faults": self.max_faults, "refused": self.refused, "active_by_severity": by_severity,
             "diagnostics_arrays": self.arrays, "store_enabled": store.enabled, "store_path": store.path,

@@ -19,7 +19,7 @@ most ``TAKES_PER_ROUND`` messages per topic and ``ROUND_BUDGET`` seconds in
 all (the rest wait in the subscription's queue for the next round, after
 the commands and timers: a busy topic cannot hold the thread; past its
 ``TRIGGER_DEPTH`` the middleware drops the oldest), converts each
-message once to JSON (``rosworker/encode.py``; NaN and ±inf as the strings
+message once to JSON (``rosworker/ros/encode.py``; NaN and ±inf as the strings
 "NaN", "Infinity", "-Infinity") and evaluates every trigger of the topic
 on it.  A topic nobody watches has no such subscription: zero per-message
 work, as before.  A topic that is not in the graph yet (a restored trigger,
@@ -43,7 +43,7 @@ frames ``t|c|<id>|``.
 
 Store.  A trigger's record is made once per change and written as one row
 of the ``triggers`` table of the state directory's SQLite store
-(``rosworker/faultstore.py``, beside the faults) by the store's thread; a
+(``rosworker/core/store.py``, beside the faults) by the store's thread; a
 command that changed a trigger is answered once its row is written.  A
 restarted ROS worker restores them all; a new gateway only the
 ``persistent`` ones (the others' rows are deleted).  They are restored before
@@ -77,12 +77,12 @@ from ipc import events, jsonpointer, protocol
 from ipc.errors import IpcError
 from ipc.topics import InvalidTopic, normalize_topic
 
-from . import msgtypes, qos
-from .encode import to_json
-from .executor import RosExecutor, Task, Timer
-from .faultstore import FaultStore
-from .graph import Endpoints
-from .stats import Stats
+from ..core.executor import RosExecutor, Task, Timer
+from ..core.graph import Endpoints
+from ..core.stats import Stats
+from ..core.store import FaultStore
+from ..ros import msgtypes, qos
+from ..ros.encode import to_json
 
 log = logging.getLogger("sovd.rosworker.triggers")
 
@@ -703,7 +703,7 @@ def events_sender(streams) -> Callable[[list[bytes]], None]:
     return send
 
 
-# faults and logs triggers: two more observable kinds, event-driven (rosworker/triggersources.py)
-from .triggersources import FaultSource, LogSource  # noqa: E402  (it imports this module's names lazily)
+# faults and logs triggers: two more observable kinds, event-driven (rosworker/triggers/sources.py)
+from .sources import FaultSource, LogSource  # noqa: E402  (it imports this module's names lazily)
 
 SOURCES.update(faults=FaultSource, logs=LogSource)

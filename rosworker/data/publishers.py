@@ -34,12 +34,12 @@ import time
 
 from ipc.errors import IpcError
 
-from . import msgtypes, qos
-from .decode import from_plain
-from .executor import RosExecutor, Task, Timer
-from .graph import Endpoints
+from ..core.executor import RosExecutor, Task, Timer
+from ..core.graph import Endpoints
+from ..core.stats import Stats
+from ..ros import msgtypes, qos
+from ..ros.decode import from_plain
 from .pool import TopicPool
-from .stats import Stats
 
 log = logging.getLogger("sovd.rosworker.publishers")
 
