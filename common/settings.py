@@ -424,3 +424,11 @@ def ensure_runtime_dir(path: str) -> str:
     if st.st_mode & 0o077:
         os.chmod(path, 0o700)
     return path
+
+
+def restart_attempt(environ: dict | os._Environ) -> int:
+    """Which restart a ROS worker is (0: the first boot), as the supervisor said (``RESTART_ENV``)."""
+    try:
+        return max(0, int(environ.get(RESTART_ENV, "0")))
+    except ValueError:
+        return 0

@@ -1,4 +1,4 @@
-"""Every counter of the ``stats`` answer and of ``/health``, declared once.
+"""Every counter of the ``stats`` answer and of ``/health``, and every command they count, declared once.
 
 One :class:`Counter` per line of :data:`COUNTERS`: the section of the ``stats``
 answer it is in, its key there, its kind, what it means and, when it is
@@ -21,6 +21,14 @@ Two origins.  ``ros``: counted by the ROS worker, sent in its ``stats`` answer.
 dropped) as Prometheus metrics in the multiprocess directory; ``/health`` and
 ``/metrics`` read their sums over every HTTP worker from there, and the ROS
 worker never sees them.
+
+:data:`COMMANDS` is the table of the commands (the keys of ``commands``, the
+timings counted per command): their name, the family of the ROS worker that
+serves them and whether they change something.  ``ipc/protocol.py`` takes from
+it the names the server accepts (a name outside it is refused before it is
+queued: the table of timings stays bounded) and the writes (an answer lost with
+the ROS worker leaves a write's outcome unknown).  A new family adds its rows
+here, its counters and its commands, and nowhere else in ``ipc/``.
 
 Plain data, standard library only: imported by the ROS worker and by the HTTP
 side alike, at import time, on any thread.
@@ -225,6 +233,36 @@ COUNTERS: tuple[Counter, ...] = (
 )
 del C
 
+
+
+@dataclass(frozen=True)
+class Command:
+    name: str
+    family: str          # who serves it: a family of the ROS worker, its "core", or the "control" thread
+    write: bool = False  # it changes something on the robot or in the gateway (see the module's docstring)
+
+
+K = Command
+COMMANDS: tuple[Command, ...] = (
+    K("ping", "control"), K("stats", "control"), K("graph", "core"), K("debug_sleep", "core"),
+    K("sample", "data"), K("subscribe", "data"), K("evict", "data"), K("publish", "data", write=True),
+    K("type_info", "data"), K("pool", "data"),
+    K("sub_create", "subscriptions", write=True), K("sub_list", "subscriptions"), K("sub_get", "subscriptions"),
+    K("sub_update", "subscriptions", write=True), K("sub_delete", "subscriptions", write=True),
+    K("op_list", "operations"), K("op_call", "operations", write=True), K("op_goal", "operations", write=True),
+    K("op_goals", "operations"), K("op_exec", "operations"), K("op_cancel", "operations", write=True),
+    K("lifecycle_state", "operations"),
+    K("param_list", "configurations"), K("param_get", "configurations"),
+    K("param_set", "configurations", write=True), K("param_reset", "configurations", write=True),
+    K("param_reset_all", "configurations", write=True),
+    K("fault_list", "faults"), K("fault_get", "faults"), K("fault_clear", "faults", write=True),
+    K("fault_events", "faults"),
+    K("logs", "logs"), K("log_config_get", "logs"), K("log_config_set", "logs", write=True),
+    K("trig_create", "triggers", write=True), K("trig_list", "triggers"), K("trig_get", "triggers"),
+    K("trig_update", "triggers", write=True), K("trig_delete", "triggers", write=True), K("trig_open", "triggers"),
+)
+del K
+
 # Help of a metric family made of several counters (``label`` "name=value").
 FAMILY_HELP = {"sovd_ros_tasks": "ROS tasks run, by outcome"}
 # The second family of a TIMINGS counter: its total time, in seconds.
@@ -269,6 +307,9 @@ def markdown() -> str:
             metric += f", `{TIMINGS_SECONDS[c.metric][0]}` `{{{c.label}}}`"
         origin = "ROS worker" if c.origin == ROS else "HTTP workers"
         rows.append(f"| {where} | `{c.name}` | {c.kind} | {origin} | {metric} | {c.help.replace('|', '/')} |")
+    rows += ["", "Commands (the keys of `commands`; a write's answer lost with the ROS worker is `outcome-unknown`):",
+             "", "| command | served by | write |", "|---|---|---|"]
+    rows += [f"| `{k.name}` | {k.family} | {'yes' if k.write else ''} |" for k in COMMANDS]
     return "\n".join([BEGIN, *rows, END])
 
 

@@ -1,4 +1,4 @@
-"""ROS 2 parameters of other nodes: the ``param_*`` commands (SOVD configurations).
+"""ROS 2 parameters of other nodes: the pooled parameter clients that run the ``param_*`` operations.
 
 Every node's parameters are read and changed through its own services
 (``rcl_interfaces``: ``list_parameters``, ``describe_parameters``,
@@ -11,8 +11,8 @@ is destroyed by the idle sweep).  A request is sent with the client handle's
 (``RosExecutor.add_poller``): no future, no spin, nothing ever waits on this
 thread.
 
-One command is one *operation* per node, written as a generator that yields
-``(service, request)`` and is sent each response (:meth:`ParameterClients._advance`);
+One command is one *operation* per node (``commands.py``), written as a generator
+that yields ``(service, request)`` and is sent each response (:meth:`ParameterClients._advance`);
 the operations of a multi-node command (a listing, a reset of everything) start
 at once and the command is answered when the last one ends.  An operation needs
 its node's client set; when all ``max_parameter_clients`` sets are held by
@@ -53,14 +53,13 @@ import time
 from collections.abc import Callable, Generator
 from typing import Any
 
-from rcl_interfaces.msg import Parameter, ParameterEvent, ParameterType, ParameterValue
+from rcl_interfaces.msg import ParameterEvent, ParameterValue
 from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters, SetParameters
 from rclpy.parameter_service import ParameterService
 from rclpy.qos import qos_profile_parameter_events, qos_profile_parameters
 
 from ipc.errors import IpcError
 
-from ..core.executor import Task
 from ..core.stats import Stats
 
 log = logging.getLogger("sovd.rosworker.parameters")
@@ -72,8 +71,6 @@ SERVICE_NAMES = {"list": "list_parameters", "describe": "describe_parameters", "
 EVENTS_TOPIC = "/parameter_events"
 EVENTS_PER_DRAIN = 1000      # parameter events taken at most per look (the rest wait for the next)
 MAX_RECORDS = 4096           # nodes whose defaults are kept (the oldest record goes first)
-MAX_NODES_PER_COMMAND = 256  # nodes one listing or reset may name
-ANSWER_MARGIN = 0.25         # seconds before the request's deadline by which every operation has ended
 # A new client whose server shows up waits this long more before its first request: the server's reply
 # writer may not have matched the client's reader yet (rclpy only tells about the request side), and a
 # reply sent before that is lost (seen with hundreds of new clients at once).  services.py does the same.
@@ -82,210 +79,8 @@ READS = ("list", "describe", "get")   # requests that may be sent again: asking 
 RESEND_AFTER = 0.5                   # seconds a read waits for its answer before it is sent again
 MAX_SENDS = 3                        # times one read is sent at most
 
-T = ParameterType
-TYPE_NAMES = {
-    T.PARAMETER_BOOL: "bool", T.PARAMETER_INTEGER: "int", T.PARAMETER_DOUBLE: "double",
-    T.PARAMETER_STRING: "string", T.PARAMETER_BYTE_ARRAY: "byte_array", T.PARAMETER_BOOL_ARRAY: "bool_array",
-    T.PARAMETER_INTEGER_ARRAY: "int_array", T.PARAMETER_DOUBLE_ARRAY: "double_array",
-    T.PARAMETER_STRING_ARRAY: "string_array", T.PARAMETER_NOT_SET: "not_set",
-}
-INT64_MIN, INT64_MAX = -(2**63), 2**63 - 1
-_NON_FINITE = {"NaN": math.nan, "Infinity": math.inf, "-Infinity": -math.inf}
-
 Step = tuple[str, Any]                          # (service kind, request)
 Operation = Generator[Step | list[Step], Any, Any]
-
-
-# ---- values: ParameterValue <-> JSON ------------------------------------------------------
-def _double_out(x: float) -> float | str:
-    """A double as JSON: NaN and ±inf as proto3's strings."""
-    if math.isnan(x):
-        return "NaN"
-    if math.isinf(x):
-        return "Infinity" if x > 0 else "-Infinity"
-    return x
-
-
-def value_json(v: ParameterValue) -> Any:
-    t = v.type
-    if t == T.PARAMETER_BOOL:
-        return bool(v.bool_value)
-    if t == T.PARAMETER_INTEGER:
-        return int(v.integer_value)
-    if t == T.PARAMETER_DOUBLE:
-        return _double_out(float(v.double_value))
-    if t == T.PARAMETER_STRING:
-        return str(v.string_value)
-    if t == T.PARAMETER_BYTE_ARRAY:
-        return [b if isinstance(b, int) else b[0] for b in v.byte_array_value]
-    if t == T.PARAMETER_BOOL_ARRAY:
-        return [bool(b) for b in v.bool_array_value]
-    if t == T.PARAMETER_INTEGER_ARRAY:
-        return [int(i) for i in v.integer_array_value]
-    if t == T.PARAMETER_DOUBLE_ARRAY:
-        return [_double_out(float(d)) for d in v.double_array_value]
-    if t == T.PARAMETER_STRING_ARRAY:
-        return [str(s) for s in v.string_array_value]
-    return None
-
-
-def type_name(v: ParameterValue) -> str:
-    return TYPE_NAMES.get(v.type, "not_set")
-
-
-def _is_int(x: Any) -> bool:
-    return isinstance(x, int) and not isinstance(x, bool) and INT64_MIN <= x <= INT64_MAX
-
-
-def _double_in(x: Any) -> float | None:
-    if isinstance(x, bool):
-        return None
-    if isinstance(x, str):
-        return _NON_FINITE.get(x)
-    if isinstance(x, (int, float)):
-        try:
-            return float(x)
-        except OverflowError:
-            return None
-    return None
-
-
-def _convert(data: Any, t: int) -> ParameterValue | None:
-    """``data`` as a value of type ``t``, or None when it is not one."""
-    if t == T.PARAMETER_BOOL:
-        return ParameterValue(type=t, bool_value=data) if isinstance(data, bool) else None
-    if t == T.PARAMETER_INTEGER:
-        return ParameterValue(type=t, integer_value=data) if _is_int(data) else None
-    if t == T.PARAMETER_DOUBLE:
-        d = _double_in(data)
-        return None if d is None else ParameterValue(type=t, double_value=d)
-    if t == T.PARAMETER_STRING:
-        return ParameterValue(type=t, string_value=data) if isinstance(data, str) else None
-    if not isinstance(data, list):
-        return None
-    if t == T.PARAMETER_BYTE_ARRAY:
-        if all(_is_int(b) and 0 <= b <= 255 for b in data):
-            return ParameterValue(type=t, byte_array_value=[bytes([b]) for b in data])
-    elif t == T.PARAMETER_BOOL_ARRAY:
-        if all(isinstance(b, bool) for b in data):
-            return ParameterValue(type=t, bool_array_value=data)
-    elif t == T.PARAMETER_INTEGER_ARRAY:
-        if all(_is_int(i) for i in data):
-            return ParameterValue(type=t, integer_array_value=data)
-    elif t == T.PARAMETER_DOUBLE_ARRAY:
-        doubles = [_double_in(d) for d in data]
-        if all(d is not None for d in doubles):
-            return ParameterValue(type=t, double_array_value=doubles)
-    elif t == T.PARAMETER_STRING_ARRAY:
-        if all(isinstance(s, str) for s in data):
-            return ParameterValue(type=t, string_array_value=data)
-    return None
-
-
-def _inferred(data: Any) -> int | None:
-    """The parameter type a JSON value reads as by itself (None: none)."""
-    if isinstance(data, bool):
-        return T.PARAMETER_BOOL
-    if _is_int(data):
-        return T.PARAMETER_INTEGER
-    if isinstance(data, float):
-        return T.PARAMETER_DOUBLE
-    if isinstance(data, str):
-        return T.PARAMETER_STRING
-    if isinstance(data, list) and data:
-        for t in (T.PARAMETER_BOOL_ARRAY, T.PARAMETER_INTEGER_ARRAY, T.PARAMETER_DOUBLE_ARRAY,
-                  T.PARAMETER_STRING_ARRAY):
-            if _convert(data, t) is not None:
-                return t
-    return None
-
-
-def to_value(data: Any, current: int) -> ParameterValue:
-    """The value to send for ``data``: of the parameter's type when it fits, else of the type the
-    JSON reads as (the node then decides, with its own reason); IpcError when it reads as none."""
-    value = _convert(data, current)
-    if value is None:
-        inferred = _inferred(data)
-        value = None if inferred is None else _convert(data, inferred)
-    if value is None:
-        expected = TYPE_NAMES.get(current, "a parameter value")
-        raise IpcError("invalid-parameter-value",
-                       f"The value is not a ROS 2 parameter value of type {expected}: expected a boolean, an "
-                       "integer (64-bit), a number (NaN and infinities as \"NaN\", \"Infinity\", \"-Infinity\"), "
-                       "a string, or a non-empty array of one of those (bytes: integers 0-255)",
-                       {"expected_type": expected})
-    return value
-
-
-def _same(a: ParameterValue, b: ParameterValue) -> bool:
-    return a.type == b.type and value_json(a) == value_json(b)
-
-
-def descriptor_json(d: Any) -> dict[str, Any]:
-    """The describe_parameters answer: description, read-only and, when declared, ranges and constraints."""
-    out: dict[str, Any] = {"description": str(d.description), "read_only": bool(d.read_only)}
-    if d.additional_constraints:
-        out["additional_constraints"] = str(d.additional_constraints)
-    if d.dynamic_typing:
-        out["dynamic_typing"] = True
-    if d.integer_range:
-        r = d.integer_range[0]
-        out["integer_range"] = {"from_value": int(r.from_value), "to_value": int(r.to_value), "step": int(r.step)}
-    if d.floating_point_range:
-        r = d.floating_point_range[0]
-        out["floating_point_range"] = {"from_value": _double_out(r.from_value), "to_value": _double_out(r.to_value),
-                                       "step": _double_out(r.step)}
-    return out
-
-
-def refused(reason: str, name: str) -> IpcError:
-    """A set the node refused: read-only (403) or any other reason (400), with the node's reason."""
-    text = reason or "the node refused the value without a reason"
-    low = text.lower()
-    if "read-only" in low or "read only" in low or "read_only" in low:
-        return IpcError("parameter-read-only", text, {"name": name})
-    return IpcError("invalid-parameter-value", text, {"name": name})
-
-
-# ---- the commands' arguments and answers ----------------------------------------------------
-def _fqn(value: Any) -> str:
-    if not isinstance(value, str) or not value.startswith("/") or len(value) > 1024 or value.endswith("/"):
-        raise IpcError("bad-request", "node: expected a fully qualified node name (/namespace/name)")
-    return value
-
-
-def _fqns(args: dict) -> list[str]:
-    nodes = args.get("nodes")
-    if not isinstance(nodes, list) or len(nodes) > MAX_NODES_PER_COMMAND:
-        raise IpcError("bad-request", f"nodes: expected a list of at most {MAX_NODES_PER_COMMAND} node names")
-    return list(dict.fromkeys(_fqn(n) for n in nodes))
-
-
-def _name(args: dict) -> str:
-    name = args.get("name")
-    if not isinstance(name, str) or not name or len(name) > 512:
-        raise IpcError("bad-request", "name: expected a parameter name of 1 to 512 characters")
-    return name
-
-
-def _outcome(result: Any, key: str) -> dict[str, Any]:
-    if isinstance(result, IpcError):
-        return {"ok": False, "error": result.to_wire()}
-    return {"ok": True, key: result}
-
-
-def _limit(task: Task) -> float:
-    """When a command's operations end at the latest: before the HTTP side stops waiting for the answer."""
-    return task.deadline - ANSWER_MARGIN
-
-
-def _answer(task: Task) -> Callable[[Any], None]:
-    def done(result: Any) -> None:
-        if isinstance(result, IpcError):
-            task.fail(result)
-        else:
-            task.reply(result)
-    return done
 
 
 # ---- the clients ----------------------------------------------------------------------------
@@ -370,7 +165,7 @@ class ParameterClients:
         self._line: collections.deque[Op] = collections.deque()  # operations waiting for a client set
         # fqn -> (monotonic time until which it is answered at once, the start key of the node that did not answer)
         self._unavailable: dict[str, tuple[float, Any]] = {}
-        self._records: collections.OrderedDict[str, Record] = collections.OrderedDict()
+        self.records: collections.OrderedDict[str, Record] = collections.OrderedDict()
         self._events = None
         # cyclic subscriptions on parameters (rosworker/configurations/feed.py): called with each /parameter_events message
         self.listeners: list[Callable[[Any], None]] = []
@@ -435,7 +230,7 @@ class ParameterClients:
         self._drain_events()
         cached = self._unavailable.get(fqn)
         now = time.monotonic()
-        if cached is not None and cached[1] != self._start_key(fqn):
+        if cached is not None and cached[1] != self.start_key(fqn):
             del self._unavailable[fqn]  # the node started again since it did not answer: ask this one
             cached = None
         until = cached[0] if cached is not None else None
@@ -472,144 +267,7 @@ class ParameterClients:
         for fqn in fqns:
             self.run(fqn, make(fqn), one(fqn), limit)
 
-    # ---- the IPC commands (ipc/PROTOCOL.md "param_*") ------------------------------------------
-    def handlers(self) -> dict[str, Callable[[Task], None]]:
-        return {"param_list": self.cmd_list, "param_get": self.cmd_get, "param_set": self.cmd_set,
-                "param_reset": self.cmd_reset, "param_reset_all": self.cmd_reset_all}
-
-    def cmd_list(self, task: Task) -> None:
-        self.run_all(_fqns(task.args), self.op_list,
-                     lambda results: task.reply({"nodes": {f: _outcome(r, "parameters") for f, r in results.items()}}),
-                     _limit(task))
-
-    def cmd_get(self, task: Task) -> None:
-        fqn = _fqn(task.args.get("node"))
-        self.run(fqn, self.op_get(fqn, _name(task.args)), _answer(task), _limit(task))
-
-    def cmd_set(self, task: Task) -> None:
-        fqn = _fqn(task.args.get("node"))
-        if "value" not in task.args:
-            raise IpcError("bad-request", "value: missing")
-        self.run(fqn, self.op_set(fqn, _name(task.args), task.args["value"]), _answer(task), _limit(task))
-
-    def cmd_reset(self, task: Task) -> None:
-        fqn = _fqn(task.args.get("node"))
-        self.run(fqn, self.op_reset(fqn, _name(task.args)), _answer(task), _limit(task))
-
-    def cmd_reset_all(self, task: Task) -> None:
-        self.run_all(_fqns(task.args), self.op_reset_all,
-                     lambda results: task.reply({"nodes": {f: _outcome(r, "result") for f, r in results.items()}}),
-                     _limit(task))
-
-    # ---- the operations (generators: yield (service, request), get the response) -------------
-    def op_list(self, fqn: str) -> Operation:
-        names, values = yield from self._read_all(fqn)
-        record = yield from self._record(fqn, (names, values))
-        for name, value in zip(names, values, strict=True):
-            record.values.setdefault(name, value)
-        return [{"name": n, "value": value_json(v), "type": type_name(v)} for n, v in zip(names, values, strict=True)]
-
-    def op_get(self, fqn: str, name: str) -> Operation:
-        yield from self._record(fqn)
-        got, described = yield [("get", GetParameters.Request(names=[name])),
-                                ("describe", DescribeParameters.Request(names=[name]))]
-        value = self._found(fqn, name, got)
-        body = {"name": name, "value": value_json(value), "type": type_name(value)}
-        if described.descriptors:
-            body.update(descriptor_json(described.descriptors[0]))
-        return body
-
-    def op_set(self, fqn: str, name: str, data: Any) -> Operation:
-        current = yield from self._current(fqn, name)
-        value = to_value(data, current.type)
-        yield from self._set(name, value)
-        after = yield "get", GetParameters.Request(names=[name])
-        now = after.values[0] if after.values else value
-        return {"name": name, "value": value_json(now), "type": type_name(now)}
-
-    def op_reset(self, fqn: str, name: str) -> Operation:
-        record = yield from self._record(fqn)
-        default = record.values.get(name)
-        if default is None:
-            raise IpcError("no-default", f"No default value for parameter: {name} (the gateway first saw it "
-                           "after it was set, or never)", {"name": name})
-        current = yield from self._current(fqn, name)
-        if not _same(current, default):
-            yield from self._set(name, default)
-        return {}
-
-    def op_reset_all(self, fqn: str) -> Operation:
-        names, values = yield from self._read_all(fqn)
-        record = yield from self._record(fqn, (names, values))
-        changed = [(n, record.values[n]) for n, v in zip(names, values, strict=True)
-                   if n in record.values and not _same(v, record.values[n])]
-        reset, failed = [], []
-        if changed:
-            request = SetParameters.Request(parameters=[Parameter(name=n, value=v) for n, v in changed])
-            response = yield "set", request
-            results = list(response.results)
-            for i, (n, _) in enumerate(changed):
-                result = results[i] if i < len(results) else None
-                if result is not None and result.successful:
-                    reset.append(n)
-                else:
-                    failed.append({"name": n, "reason": (result.reason if result is not None else "")
-                                   or "the node gave no result for it"})
-        return {"reset": reset, "failed": failed}
-
-    # ---- steps shared by the operations ---------------------------------------------------
-    def _read_all(self, fqn: str) -> Generator[Step, Any, tuple[list[str], list[ParameterValue]]]:
-        for _ in range(2):  # a parameter undeclared between the two calls: once more
-            listed = yield "list", ListParameters.Request()
-            names = list(listed.result.names)
-            if not names:
-                return [], []
-            got = yield "get", GetParameters.Request(names=names)
-            values = list(got.values)
-            if len(values) == len(names):
-                return names, values
-        raise IpcError("parameter-failed", f"The parameters of {fqn} changed while they were read; retry",
-                       {"node": fqn})
-
-    def _current(self, fqn: str, name: str) -> Generator[Step, Any, ParameterValue]:
-        yield from self._record(fqn)
-        got = yield "get", GetParameters.Request(names=[name])
-        return self._found(fqn, name, got)
-
-    def _found(self, fqn: str, name: str, got: Any) -> ParameterValue:
-        """The value of a get_parameters answer for one name (first seen: recorded), or 404."""
-        if not got.values or got.values[0].type == T.PARAMETER_NOT_SET:
-            raise IpcError("no-such-parameter", f"Parameter not found: {name}", {"name": name})
-        record = self._records.get(fqn)
-        if record is not None:
-            record.values.setdefault(name, got.values[0])
-        return got.values[0]
-
-    def _set(self, name: str, value: ParameterValue) -> Generator[Step, Any, None]:
-        response = yield "set", SetParameters.Request(parameters=[Parameter(name=name, value=value)])
-        if not response.results:
-            raise IpcError("parameter-failed", f"Set parameter returned no result for: {name}", {"name": name})
-        if not response.results[0].successful:
-            raise refused(response.results[0].reason, name)
-
-    def _record(self, fqn: str, read: tuple[list[str], list[ParameterValue]] | None = None
-                ) -> Generator[Step, Any, Record]:
-        """The node's record of this start; made from ``read`` or from a read of every parameter."""
-        key = self._start_key(fqn)
-        record = self._records.get(fqn)
-        if record is not None and record.key == key:
-            self._records.move_to_end(fqn)
-            return record
-        if read is None:
-            read = yield from self._read_all(fqn)
-        record = Record(key)
-        record.values.update(zip(*read, strict=True))
-        self._records[fqn] = record
-        while len(self._records) > MAX_RECORDS:
-            self._records.popitem(last=False)
-        return record
-
-    def _start_key(self, fqn: str) -> Any:
+    def start_key(self, fqn: str) -> Any:
         """Which start of the node this is: the GID of its /parameter_events publisher (None: none)."""
         namespace, _, name = fqn.rpartition("/")
         namespace = namespace or "/"
@@ -761,7 +419,7 @@ class ParameterClients:
 
     def _timed_out(self, op: Op) -> None:
         self.stats.parameter_timeouts += 1
-        self._unavailable[op.fqn] = (time.monotonic() + self.negative_cache_s, self._start_key(op.fqn))
+        self._unavailable[op.fqn] = (time.monotonic() + self.negative_cache_s, self.start_key(op.fqn))
         what = "did not respond" if op.sent else "was not available"
         log.warning("parameter service of %s %s within %g s (answered at once for %g s)", op.fqn, what,
                     self.timeout, self.negative_cache_s)
@@ -849,10 +507,10 @@ class ParameterClients:
             self.stats.parameter_events += 1
             for listener in self.listeners:  # cyclic subscriptions on parameters (rosworker/configurations/feed.py)
                 listener(event)
-            record = self._records.get(event.node)
+            record = self.records.get(event.node)
             if record is None or not event.new_parameters:
                 continue
-            if record.key != self._start_key(event.node):
+            if record.key != self.start_key(event.node):
                 continue
             for p in event.new_parameters:
                 record.values.setdefault(p.name, p.value)

@@ -31,10 +31,10 @@ publishers waiting for their subscribers) run on the same thread from a heap.
 Another thread hands work to this one with :meth:`RosExecutor.post` (the
 restart state's writer: the replies that waited for a write).
 
-Wiring: the other pieces are built on an executor (they set its timers), so
-what the loop runs is given to it after them, before :meth:`RosExecutor.run`,
-by ``rosworker/main.py`` only: the command handlers (:meth:`RosExecutor.serve`)
-and the pool's cold entries (:meth:`RosExecutor.watch_cold`).
+Wiring: the families are built on an executor (they set its timers), so what
+the loop runs is given to it after them, before :meth:`RosExecutor.run`: the
+command handlers of every family (:meth:`RosExecutor.serve`, by ``main.py``),
+and the data family's cold entries (:meth:`RosExecutor.watch_cold`).
 
 Containment: an exception in a task answers that task's caller with an
 error; an exception anywhere else on this thread (a timer, a cold-topic

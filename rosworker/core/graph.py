@@ -3,8 +3,9 @@
 rclpy in Jazzy offers no graph-change event, so the ROS thread polls every
 ``graph_poll_tick``: topic names and types plus node names are cheap (tens of
 µs) and form a fingerprint; a changed fingerprint bumps ``generation`` and
-makes the pool re-check every entry.  Between changes the pool only looks
-at each subscription's matched-publisher count (about 1 µs), and every
+tells the listeners (:meth:`GraphMonitor.on_change`: the data family's pool
+re-checks every entry).  Between changes a listener only looks at what is cheap
+(the pool: each subscription's matched-publisher count, about 1 µs), and every
 second it re-checks everything, which catches what the fingerprint cannot see
 (a publisher leaving a topic that our own subscription keeps in the graph).
 
@@ -16,9 +17,8 @@ re-check) let a stream's tick answer a topic nobody publishes without asking
 the graph (``rosworker/subscriptions/registry.py``): a name that is not in ``topics`` has no
 endpoint at all, and its answer only changes with ``generation``.
 
-:class:`Endpoints` lists a topic's publishers and subscribers without the
-gateway's own node (its pooled subscriptions, its publishers for PUT): the
-pool and the publishers count and type topics by it.
+The ``graph`` command (``ipc/PROTOCOL.md``) answers :meth:`GraphMonitor.snapshot`;
+a topic's endpoints without the gateway's own are ``core/endpoints.py``'s.
 """
 
 from __future__ import annotations
@@ -26,47 +26,25 @@ from __future__ import annotations
 import collections
 import logging
 import time
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable
+from typing import Any
 
+from ipc.errors import IpcError
+
+from .executor import Task
 from .stats import Stats
-
-if TYPE_CHECKING:  # the pool imports Endpoints from here
-    from ..data.pool import TopicPool
 
 log = logging.getLogger("sovd.rosworker.graph")
 
-FULL_CHECK_EVERY = 1.0      # seconds between full pool re-checks
+FULL_CHECK_EVERY = 1.0      # seconds between full re-checks (the listeners' ``full``)
 SNAPSHOT_RECHECK_FOR = 10.0  # keep re-checking node detail this long after a graph request
 
 
-class Endpoints:
-    """A topic's endpoints as the graph lists them, the gateway's own node left out (ROS thread)."""
-
-    def __init__(self, node):
-        self.node = node
-        self.own = (node.get_name(), node.get_namespace())
-
-    def _foreign(self, infos: list) -> list:
-        own_name, own_ns = self.own
-        return [i for i in infos if i.node_name != own_name or i.node_namespace != own_ns]
-
-    def publishers(self, topic: str) -> list:
-        """``TopicEndpointInfo`` of the topic's publishers, the gateway's own left out."""
-        return self._foreign(self.node.get_publishers_info_by_topic(topic))
-
-    def subscribers(self, topic: str) -> list:
-        """``TopicEndpointInfo`` of the topic's subscribers, the gateway's own left out."""
-        return self._foreign(self.node.get_subscriptions_info_by_topic(topic))
-
-    def subscriber_count(self, topic: str) -> int:
-        return len(self.subscribers(topic))
-
-
 class GraphMonitor:
-    def __init__(self, node, pool: TopicPool, stats: Stats):
+    def __init__(self, node, stats: Stats):
         self.node = node
-        self.pool = pool
         self.stats = stats
+        self._listeners: list[Callable[[bool], None]] = []
         self.own = (node.get_name(), node.get_namespace())
         # Starts from the wall clock (ms) so that a restarted worker never answers
         # "unchanged" to a generation a client cached from its predecessor.
@@ -94,7 +72,8 @@ class GraphMonitor:
         if full:
             self._last_full = now
             self.epoch += 1
-        self.pool.check_graph(full)
+        for listener in self._listeners:
+            listener(full)
         if full and not changed and self._snapshot is not None \
                 and now - self._last_request < SNAPSHOT_RECHECK_FOR:
             # Endpoint changes that leave names and types alone (a node adds a
@@ -104,6 +83,18 @@ class GraphMonitor:
                 self._bump()
                 fresh["generation"] = self.generation
                 self._snapshot = fresh
+
+    def on_change(self, listener: Callable[[bool], None]) -> None:
+        """``listener(full)`` after every poll: ``full`` when the graph changed or at the periodic full
+        re-check (everything is looked at again then; only what is cheap otherwise).  ROS thread."""
+        self._listeners.append(listener)
+
+    def command(self, task: Task) -> None:
+        """``graph`` (``since``: the generation the caller has; "unchanged" when it is still the one)."""
+        since = task.args.get("since")
+        if since is not None and (isinstance(since, bool) or not isinstance(since, int)):
+            raise IpcError("bad-request", "since: expected an integer generation")
+        task.reply(self.snapshot(since))
 
     def _bump(self) -> None:
         self.generation += 1
@@ -163,3 +154,31 @@ def node_names(nodes: list[tuple[str, str]], own: tuple[str, str]) -> list[str]:
 
 def _comparable(snapshot: dict[str, Any]) -> Any:
     return (snapshot["nodes"], [(t["name"], t["types"]) for t in snapshot["topics"]])
+
+
+def settle(node, expected: set[str], least: float, quiet: float, most: float,
+           stop: Callable[[], bool] = lambda: False) -> None:
+    """Wait until DDS discovery has found the running graph, before the worker answers anyone.
+
+    A graph answered too early would tell the HTTP side that nodes which never left are gone
+    (404).  Until the socket is bound, clients get 503 ``unavailable`` with Retry-After instead,
+    which is the truth.  Settled means: the nodes the previous worker knew (``expected``) are back,
+    or ``most`` seconds passed (some of them really left); at least ``least`` seconds passed; and
+    the graph has not changed for ``quiet``.  At the first boot nobody was told anything before, so
+    only the quiet period counts (gunicorn, started next, takes longer to answer anyway).
+    """
+    own = (node.get_name(), node.get_namespace())
+    started = time.monotonic()
+    last, quiet_since = None, started
+    while not stop():
+        now = time.monotonic()
+        nodes = node.get_node_names_and_namespaces()
+        seen = (sorted(nodes), sorted((n, tuple(t)) for n, t in node.get_topic_names_and_types()))
+        if seen != last:
+            last, quiet_since = seen, now
+        elapsed = now - started
+        found = expected.issubset(node_names(nodes, own))
+        if elapsed >= most or (found and elapsed >= least and now - quiet_since >= quiet):
+            break
+        time.sleep(0.05)
+    log.info("discovery settled after %.2f s (%d nodes)", time.monotonic() - started, len(last[0]) if last else 0)

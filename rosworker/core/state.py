@@ -1,23 +1,25 @@
 """What a restarted ROS worker needs from its predecessor, kept in the runtime dir.
 
-``<runtime_dir>/restart-state.json``: the pooled topics (subscribed again as their
-publishers are discovered), the nodes of the graph (the new worker does
-not answer anyone until discovery has found them again, or a deadline
-passes) and the cyclic subscriptions (their streams go on after the restart).
-Written atomically, only when it changed; a worker killed outright leaves the
-last copy behind.  Only a restarted worker reads it: the first boot of a
-gateway removes it (``rosworker/main.py``), so a new gateway starts empty.
+``<runtime_dir>/restart-state.json`` holds one list per *part*: the core's
+``nodes`` (the graph's nodes: the new worker answers nobody until discovery has
+found them again, or a deadline passes), and what the families add with
+:meth:`RestartState.part` (the data family's pooled ``topics``, subscribed again
+as their publishers are discovered; the cyclic ``subscriptions``, whose streams
+go on after the restart).  Written atomically, only when it changed; a worker
+killed outright leaves the last copy behind.  Only a restarted worker reads it:
+the first boot of a gateway removes it (:meth:`RestartState.discard`), so a new
+gateway starts empty.
 
-Threads: the ROS thread calls :meth:`RestartState.submit` (after each change
-of the subscriptions, and every ``STATE_SAVE_EVERY`` for the pool); that only
-puts the state in one slot (the latest wins: states submitted while a write
-runs are coalesced into the next one) and wakes the writer thread, which
-serialises and writes it.  The subscriptions arrive as their JSON records,
-made once per change of each (``rosworker/subscriptions/registry.py``), so the ROS thread's
-cost of a change does not grow with the registry.  ``submit``'s ``then``
-(a command's reply) is handed back to the ROS thread through ``post`` once a
+Threads: the ROS thread calls :meth:`RestartState.save` (every ``STATE_SAVE_EVERY``,
+``core/family.py``, and after each change of a part that its owner wants on disk
+before it answers); that compares each part's version (or value) with the last
+one handed over and, when one changed, hands the lists to the writer thread
+(``core/writer.py``: the latest wins), which serialises and writes them.  A part
+of records (``records=True``) is a list of JSON texts its owner made once per
+change of each item, so the ROS thread's cost of a change does not grow with the
+part.  ``save``'s ``then`` (a command's reply) runs on the ROS thread once a
 state at least as new is written.  Before :meth:`start` and after
-:meth:`close`, ``submit`` writes on the caller's thread.
+:meth:`close`, ``save`` writes on the caller's thread.
 """
 
 from __future__ import annotations
@@ -25,10 +27,12 @@ from __future__ import annotations
 import json
 import logging
 import os
-import threading
 from collections.abc import Callable
+from typing import Any
 
 from common.process import write_atomic
+
+from .writer import LatestWriter
 
 log = logging.getLogger("sovd.rosworker.state")
 
@@ -36,83 +40,56 @@ FILE_NAME = "restart-state.json"
 MAX_ITEMS = 8192
 
 
+class _Part:
+    __slots__ = ("name", "value", "records", "version")
+
+    def __init__(self, name: str, value: Callable[[], list], records: bool, version: Callable[[], Any] | None):
+        self.name, self.value, self.records, self.version = name, value, records, version
+
+    def seen(self) -> Any:
+        return self.version() if self.version is not None else tuple(self.value())
+
+
 class RestartState:
     def __init__(self, runtime_dir: str, post: Callable[[Callable[[], None]], None] | None = None):
         self.path = os.path.join(runtime_dir, FILE_NAME)
-        self._post = post or (lambda fn: fn())
+        self._parts: list[_Part] = []
+        self._submitted: tuple | None = None   # what the last save saw of each part
         self._written_text: bytes | None = None
-        self._lock = threading.Lock()
-        self._wake = threading.Condition(self._lock)
-        self._submitted: tuple | None = None     # what the last submit saw (topics, nodes, version)
-        self._seq = 0                           # bumped by each submit that changed something
-        self._written = 0                       # the newest seq written (or failed to be)
-        self._pending: tuple | None = None      # (seq, topics, nodes, records): the one slot
-        self._waiting: list[tuple[int, Callable[[], None]]] = []
-        self._thread: threading.Thread | None = None
-        self._closing = False
-        self._io = threading.Lock()             # one write at a time (close() may time out on one)
+        self._loaded: dict[str, list] = {}
+        self._writer = LatestWriter("restart-state-writer", self._write_batch, post=post)
 
-    # ---- ROS thread -----------------------------------------------------------------------------
+    def part(self, name: str, value: Callable[[], list], *, records: bool = False,
+             version: Callable[[], Any] | None = None) -> None:
+        """One more list in the file: ``value()`` gives it (strings; with ``records``, JSON texts of objects,
+        asked for only when ``version()`` changed).  Before the loop runs (a family's start)."""
+        self._parts.append(_Part(name, value, records, version))
+
+    # ---- the ROS thread -----------------------------------------------------------------------------
     def start(self) -> None:
-        self._thread = threading.Thread(target=self._run, name="restart-state-writer", daemon=True)
-        self._thread.start()
+        self._writer.start()
 
-    def submit(self, topics: list[str], nodes: list[str], version: int, records: Callable[[], list[bytes]],
-               then: Callable[[], None] | None = None) -> None:
-        """Hand the state over (``records`` is called only when ``version`` changed); ``then`` once written."""
-        seen = (tuple(topics), tuple(nodes), version)
-        with self._lock:
-            if seen != self._submitted:
-                self._submitted = seen
-                self._seq += 1
-                self._pending = (self._seq, topics, nodes, records())
-                self._wake.notify()
-            threaded = self._thread is not None and not self._closing
-            if then is not None and threaded and self._written < self._seq:
-                self._waiting.append((self._seq, then))
-                then = None
-        if not threaded:
-            self._write_pending()
-        if then is not None:
-            then()
+    def save(self, then: Callable[[], None] | None = None) -> None:
+        """Hand the parts to the writer if one changed; ``then`` once a state at least as new is written."""
+        seen = tuple(p.seen() for p in self._parts)
+        if seen == self._submitted:
+            if then is not None:
+                self._writer.after(then)
+            return
+        self._submitted = seen
+        self._writer.submit("state", [(p.name, p.records, p.value()) for p in self._parts], then)
 
     def close(self, timeout: float) -> None:
-        """Write what is pending and stop the writer, within ``timeout`` s; later submits write at once."""
-        with self._lock:
-            self._closing = True
-            self._wake.notify()
-        if self._thread is not None:
-            self._thread.join(timeout)
-            if self._thread.is_alive():
-                log.warning("the restart state's writer did not finish within %g s", timeout)
+        """Write what is pending and stop the writer, within ``timeout`` s; later saves write at once."""
+        self._writer.close(timeout)
 
-    # ---- the writer thread -----------------------------------------------------------------------
-    def _run(self) -> None:
-        while True:
-            with self._lock:
-                while self._pending is None and not self._closing:
-                    self._wake.wait()
-                if self._pending is None:
-                    return
-            self._write_pending()
-
-    def _write_pending(self) -> None:
-        with self._lock:
-            job, self._pending = self._pending, None
-        if job is not None:
-            seq, topics, nodes, records = job
-            with self._io:
-                self._write(topics, nodes, records)
-            with self._lock:
-                self._written = max(self._written, seq)
-                ready = [fn for s, fn in self._waiting if s <= self._written]
-                self._waiting = [(s, fn) for s, fn in self._waiting if s > self._written]
-            for fn in ready:
-                self._post(fn)
-
-    def _write(self, topics: list[str], nodes: list[str], records: list[bytes]) -> None:
-        text = b"".join((b'{"topics":', json.dumps(topics).encode(), b',"nodes":', json.dumps(nodes).encode(),
-                         b',"subscriptions":[', b",".join(records), b"]}"))
+    # ---- the writer thread ------------------------------------------------------------------------------
+    def _write_batch(self, batch: dict[str, list]) -> None:
+        parts = batch["state"]
+        text = b"{" + b",".join(
+            json.dumps(name).encode() + b":" + (b"[" + b",".join(value) + b"]" if records
+                                                 else json.dumps(value).encode())
+            for name, records, value in parts) + b"}"
         if text == self._written_text:
             return
         try:
@@ -123,7 +100,7 @@ class RestartState:
         except OSError as exc:
             log.warning("could not save the restart state to %s: %s", self.path, exc)
 
-    # ---- boot ----------------------------------------------------------------------------------
+    # ---- boot ----------------------------------------------------------------------------------------
     def discard(self) -> None:
         """Remove the previous run's state (the first boot of a gateway: nothing died)."""
         for path in (self.path, self.path + ".tmp"):
@@ -134,20 +111,20 @@ class RestartState:
             except OSError as exc:
                 log.warning("could not remove the previous run's state %s: %s", path, exc)
 
-    def load(self) -> tuple[list[str], list[str], list[dict]]:
-        """``(topics, nodes, subscriptions)`` saved by the previous worker; empty when there is none."""
+    def load(self) -> None:
+        """Read what the previous worker saved (nothing when there is none, or it is damaged)."""
+        self._loaded = {}
         try:
             with open(self.path) as fh:
                 data = json.load(fh)
         except (OSError, ValueError):
-            return [], [], []
-        if not isinstance(data, dict):
-            return [], [], []
+            return
+        if isinstance(data, dict):
+            self._loaded = data
 
-        def strings(key: str) -> list[str]:
-            items = data.get(key)
-            return [x for x in items if isinstance(x, str)][-MAX_ITEMS:] if isinstance(items, list) else []
-
-        subs = data.get("subscriptions")
-        subs = [s for s in subs if isinstance(s, dict)][-MAX_ITEMS:] if isinstance(subs, list) else []
-        return strings("topics"), strings("nodes"), subs
+    def loaded(self, name: str, records: bool = False) -> list:
+        """The part ``name`` as the previous worker saved it: strings (objects with ``records``), the newest
+        ``MAX_ITEMS``; empty when there is none."""
+        items = self._loaded.get(name)
+        kind = dict if records else str
+        return [x for x in items if isinstance(x, kind)][-MAX_ITEMS:] if isinstance(items, list) else []

@@ -45,8 +45,13 @@ class Stats:
         self.ticks: dict[str, int] = {}  # stream timer rounds by interval
         self.phase_changes = 0  # tick phase per topic: times a topic's ticks were phased to its arrivals
         self.current_task_started = 0.0  # monotonic; 0 while idle
-        self.faults: dict = {}  # faults: /health's x-medkit-faults, replaced whole (rosworker/faults/manager.py)
-        self.faults_left: dict = {}  # ... and its faults left by absent nodes (rosworker/faults/left.py)
+        # sections a family sends whole (faults: /health's x-medkit-faults), see set_section
+        self.sections: dict[str, dict] = {}
+
+    def set_section(self, name: str, part: dict) -> None:
+        """A section of the stats answer that a family keeps as one dict (not counters of
+        ``ipc/counters.py``): replaced whole, never changed in place (the control thread reads it)."""
+        self.sections = {**self.sections, name: part}
 
     def task_started(self) -> float:
         now = time.monotonic()
@@ -110,6 +115,5 @@ class Stats:
                     part[key] = self.current_task_age_ms()
                 else:
                     part[key] = getattr(self, key)
-        if self.faults:  # faults (rosworker/faults/manager.py): a dict replaced whole, never changed in place
-            answer["faults"] = {**self.faults, **self.faults_left}
+        answer.update(self.sections)  # replaced whole by set_section, never changed in place
         return answer

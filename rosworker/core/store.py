@@ -1,36 +1,31 @@
 """The gateway's memory: SQLite in the state directory, written by one thread of the ROS worker.
 
 ``<state_dir>/faults.db`` (Python's ``sqlite3``; WAL, ``synchronous=FULL``, so a
-committed write survives a killed process and a power cut) holds three tables:
-
-- ``faults``: one row per fault code, its record as a JSON document
-  (``rosworker/faults/manager.py`` owns the record's fields);
-- ``events``: the fault stream's last ``MAX_EVENTS`` events by id, so that a
-  client reconnecting with ``Last-Event-ID`` is answered from here, even after
-  a restart;
-- ``triggers``: one row per trigger, its record as a JSON document
-  (``rosworker/triggers/registry.py`` owns it): a change writes that one row, never the
-  whole set.
+committed write survives a killed process and a power cut) holds the tables the
+families declare with :meth:`Store.table` (:class:`Table`: its ``CREATE``, how a
+row is put and deleted, and how they are read back at start-up): the faults and
+their events (``faults/store.py``), the triggers (``triggers/store.py``).  A row
+is a key and a JSON document; a change writes that one row, never a whole set.
 
 The file, its ``-wal`` and ``-shm`` are the service user's alone (0600: freeze
 frames hold robot data), in a state directory made 0700 when the gateway makes
 it (systemd makes it with ``StateDirectoryMode=``).
 
-Threads: :meth:`FaultStore.load` and :meth:`FaultStore.load_triggers` run on
-the ROS thread at start-up, before the loop.  After :meth:`start`, the ROS
-thread only calls :meth:`put`, :meth:`event` and :meth:`put_trigger`, which put
-the change in a dict keyed by fault code or trigger id (the latest state wins:
-a burst of changes to one row is one row write) and wake the writer thread; so
-the pending work is bounded by the number of faults (``max_faults``), of
-triggers (``max_triggers``) and ``MAX_EVENTS``, and a write never delays a
-take.  A failed write (disk full, file removed) is counted, kept as
-``last_write_error`` and retried after ``RETRY_AFTER`` s with whatever is newer.
+Threads: :meth:`Store.open` and :meth:`TableHandle.rows` run on the ROS thread
+at start-up, before the loop.  After :meth:`start`, the ROS thread only calls
+:meth:`TableHandle.put`, which hands the row to the writer thread
+(``core/writer.py``: keyed by table and key, the latest state wins, so a burst
+of changes to one row is one row write) and never waits on the disk; what waits
+is bounded by the rows (``max_faults``, ``max_triggers``) and, for a table with
+``keep`` (the fault events), by that count.  A failed write (disk full, file
+removed) is counted, kept as ``last_write_error`` and retried after
+``RETRY_AFTER`` s with whatever is newer.
 
 A file that SQLite cannot open or whose ``PRAGMA quick_check`` fails is moved
 aside (``faults.db.corrupt-<unix time>``) with an error line in the log, and an
 empty store is used: the gateway starts without its history rather than not
 at all.  A state directory that cannot be written at all leaves the store in
-memory only (also logged).
+memory only (also logged): puts are dropped, and their ``then`` runs at once.
 """
 
 from __future__ import annotations
@@ -39,70 +34,109 @@ import json
 import logging
 import os
 import sqlite3
-import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
-log = logging.getLogger("sovd.rosworker.faultstore")
+from .writer import LatestWriter
+
+log = logging.getLogger("sovd.rosworker.store")
 
 FILE_NAME = "faults.db"
-MAX_EVENTS = 1000          # events kept for Last-Event-ID replay
 RETRY_AFTER = 1.0          # seconds before a failed write is tried again
 BUSY_TIMEOUT = 5.0         # seconds sqlite waits for a lock (only this process writes)
-
-FILE_MODE = 0o600         # the store's files: the service user's alone
-DIR_MODE = 0o700          # a state directory the gateway makes
-_SCHEMA = (
-    "CREATE TABLE IF NOT EXISTS faults (code TEXT PRIMARY KEY, doc TEXT NOT NULL, updated_ns INTEGER NOT NULL)",
-    "CREATE TABLE IF NOT EXISTS events (id INTEGER PRIMARY KEY, doc TEXT NOT NULL)",
-    "CREATE TABLE IF NOT EXISTS triggers (id TEXT PRIMARY KEY, doc TEXT NOT NULL)",
-)
+FILE_MODE = 0o600          # the store's files: the service user's alone
+DIR_MODE = 0o700           # a state directory the gateway makes
 
 
-class FaultStore:
-    def __init__(self, state_dir: str):
+@dataclass(frozen=True)
+class Table:
+    """One table of the store: rows of (key, JSON document).
+
+    ``upsert`` takes ``(key, doc)``, or ``(key, doc, now_ns)`` when ``stamped``; ``delete`` takes
+    ``(key,)``; ``select`` gives ``(key, doc)`` rows at start-up.  With ``keep`` (integer keys that
+    only grow), ``trim`` deletes the rows up to the newest key written minus ``keep`` at each write,
+    and no more than ``keep`` of them wait for the writer."""
+
+    name: str
+    create: str
+    upsert: str
+    delete: str
+    select: str
+    stamped: bool = False
+    keep: int = 0
+    trim: str = ""
+
+
+class TableHandle:
+    """A family's table: its rows at start-up, and puts (ROS thread)."""
+
+    def __init__(self, store: Store, table: Table):
+        self.store = store
+        self.table = table
+
+    def rows(self) -> list[tuple[Any, Any]]:
+        """``(key, document)`` of every row, the document None when it is not JSON (start-up only)."""
+        return self.store._rows(self.table)
+
+    def put(self, key: Any, doc: Any, then: Callable[[], None] | None = None) -> None:
+        """Write ``doc`` (a dict, or JSON bytes) as row ``key`` (None: delete it), soon, on the writer
+        thread; ``then()`` on the ROS thread once it is written (at once when the store is in memory)."""
+        self.store._put(self.table, key, doc, then)
+
+
+class Store:
+    def __init__(self, state_dir: str, post: Callable[[Callable[[], None]], None] | None = None):
         self.path = os.path.join(state_dir, FILE_NAME) if state_dir else ""
         self.enabled = bool(self.path)
         self._db: sqlite3.Connection | None = None
-        self._lock = threading.Lock()
-        self._wake = threading.Condition(self._lock)
-        self._faults: dict[str, dict[str, Any] | None] = {}   # code -> record (None: delete)
-        self._events: list[tuple[int, dict[str, Any]]] = []
-        self._triggers: dict[str, bytes | None] = {}        # trigger id -> record (None: delete)
-        self._written: list[Callable[[], None]] = []         # called once what was put before is written
-        self._thread: threading.Thread | None = None
-        self._closing = False
-        self._busy = False
-        # what /health shows (read by the control thread: plain attributes)
-        self.writes = 0
-        self.write_errors = 0
-        self.last_write_error = ""
+        self._tables: dict[str, Table] = {}
         self.moved_aside = ""      # where a corrupt file went, if one did at start-up
+        self._why = ""             # why the store is in memory only
+        self._writer = LatestWriter("store-writer", self._write, post=post, retry_after=RETRY_AFTER,
+                                    on_error=self._failed, keep=self._bound)
 
-    # ---- start-up (ROS thread, before the loop) ------------------------------------------------
-    def load(self) -> tuple[dict[str, dict[str, Any]], list[tuple[int, dict[str, Any]]]]:
-        """The stored faults and events; a corrupt file is moved aside and an empty store used."""
+    # ---- what /health shows (read by the control thread: plain attributes) --------------------------
+    @property
+    def writes(self) -> int:
+        return self._writer.writes
+
+    @property
+    def write_errors(self) -> int:
+        return self._writer.errors
+
+    @property
+    def last_write_error(self) -> str:
+        return self._writer.last_error or self._why
+
+    @property
+    def pending(self) -> int:
+        return self._writer.pending
+
+    # ---- start-up (ROS thread, before the loop) ------------------------------------------------------
+    def open(self) -> None:
+        """Open the file (a corrupt one is moved aside and an empty store used)."""
         if not self.enabled:
-            return {}, []
+            return
         try:
             make_private_dir(os.path.dirname(self.path))
         except OSError as exc:
             self._disable(f"cannot create the state directory: {exc}")
-            return {}, []
+            return
         try:
-            return self._open_and_read()
+            self._open()
+            return
         except sqlite3.DatabaseError as exc:
             self._close_db()
             self._move_aside(exc)
         try:
-            return self._open_and_read()
+            self._open()
         except sqlite3.Error as exc:
             self._close_db()
             self._disable(f"cannot open a new store: {exc}")
-            return {}, []
 
-    def _open_and_read(self):
+    def _open(self) -> None:
         private_files(self.path)
         db = sqlite3.connect(self.path, timeout=BUSY_TIMEOUT, isolation_level=None, check_same_thread=False)
         self._db = db
@@ -111,42 +145,32 @@ class FaultStore:
             raise sqlite3.DatabaseError(f"quick_check: {check[0] if check else 'no answer'}")
         db.execute("PRAGMA journal_mode=WAL")
         db.execute("PRAGMA synchronous=FULL")
-        for statement in _SCHEMA:
-            db.execute(statement)
-        faults: dict[str, dict[str, Any]] = {}
-        for code, doc in db.execute("SELECT code, doc FROM faults"):
-            try:
-                record = json.loads(doc)
-            except ValueError:
-                log.warning("fault store: the record of %r is not JSON; dropped", code[:100])
-                continue
-            if isinstance(record, dict):
-                faults[code] = record
-        events = []
-        for event_id, doc in db.execute("SELECT id, doc FROM events ORDER BY id DESC LIMIT ?", (MAX_EVENTS,)):
-            try:
-                events.append((int(event_id), json.loads(doc)))
-            except ValueError:
-                continue
-        events.reverse()
         private_files(self.path)  # the -wal and -shm that journal_mode=WAL made (SQLite copies the file's mode)
-        log.info("fault store %s: %d faults, %d events", self.path, len(faults), len(events))
-        return faults, events
+        log.info("store %s opened", self.path)
 
-    def load_triggers(self) -> list[tuple[str, Any]]:
-        """The stored triggers: ``(row id, record)``, the record None when it is not JSON (ROS thread,
-        after :meth:`load`, before :meth:`start`)."""
+    def table(self, table: Table) -> TableHandle:
+        """Declare ``table`` (made if the file has none); a family's start."""
+        self._tables[table.name] = table
+        if self._db is not None:
+            try:
+                self._db.execute(table.create)
+            except sqlite3.Error as exc:
+                log.error("store %s: table %s could not be made (%s)", self.path, table.name, exc)
+        return TableHandle(self, table)
+
+    def _rows(self, table: Table) -> list[tuple[Any, Any]]:
         if not self.enabled or self._db is None:
             return []
-        out: list[tuple[str, Any]] = []
+        out: list[tuple[Any, Any]] = []
         try:
-            for trigger_id, doc in self._db.execute("SELECT id, doc FROM triggers"):
+            for key, doc in self._db.execute(table.select):
                 try:
-                    out.append((str(trigger_id), json.loads(doc)))
+                    out.append((key, json.loads(doc)))
                 except ValueError:
-                    out.append((str(trigger_id), None))
+                    log.warning("store: a row of %s (%r) is not JSON", table.name, str(key)[:100])
+                    out.append((key, None))
         except sqlite3.Error as exc:
-            log.error("store %s: the triggers could not be read (%s)", self.path, exc)
+            log.error("store %s: the %s could not be read (%s)", self.path, table.name, exc)
         return out
 
     def _move_aside(self, exc: Exception) -> None:
@@ -157,17 +181,18 @@ class FaultStore:
                 if os.path.exists(self.path + suffix):
                     os.replace(self.path + suffix, target + suffix)
         except OSError as move_error:
-            log.error("fault store %s is corrupt or unreadable (%s) and could not be moved aside (%s)",
+            log.error("store %s is corrupt or unreadable (%s) and could not be moved aside (%s)",
                       self.path, exc, move_error)
             return
         self.moved_aside = target
-        log.error("fault store %s is corrupt or unreadable (%s): moved it aside to %s; starting with an "
-                  "empty fault store (the old file is kept for inspection)", self.path, exc, target)
+        log.error("store %s is corrupt or unreadable (%s): moved it aside to %s; starting with an "
+                  "empty store (the old file is kept for inspection)", self.path, exc, target)
 
     def _disable(self, why: str) -> None:
         self.enabled = False
-        self.last_write_error = why
-        log.error("fault store %s: %s; faults are kept in memory only until the next restart", self.path, why)
+        self._why = why
+        log.error("store %s: %s; faults and triggers are kept in memory only until the next restart",
+                  self.path, why)
 
     def _close_db(self) -> None:
         if self._db is not None:
@@ -179,144 +204,59 @@ class FaultStore:
 
     def start(self) -> None:
         if self.enabled and self._db is not None:
-            self._thread = threading.Thread(target=self._run, name="fault-store-writer", daemon=True)
-            self._thread.start()
+            self._writer.start()
 
     # ---- ROS thread ------------------------------------------------------------------------------
-    def put(self, code: str, record: dict[str, Any] | None) -> None:
-        """Write ``record`` as the fault ``code`` (None: delete it), soon, on the writer thread."""
-        if not self.enabled:
-            return
-        with self._lock:
-            self._faults[code] = None if record is None else dict(record)
-            self._wake.notify()
-
-    def event(self, event_id: int, event: dict[str, Any]) -> None:
-        if not self.enabled:
-            return
-        with self._lock:
-            self._events.append((event_id, event))
-            if len(self._events) > MAX_EVENTS:
-                del self._events[:-MAX_EVENTS]
-            self._wake.notify()
-
-    def put_trigger(self, trigger_id: str, record: bytes | None, then: Callable[[], None] | None = None) -> None:
-        """Write one trigger's record (None: delete it), soon, on the writer thread; ``then()`` is
-        called (on that thread) once it is written.  A store in memory only calls it at once."""
+    def _put(self, table: Table, key: Any, doc: Any, then: Callable[[], None] | None) -> None:
         if not self.enabled or self._db is None:
             if then is not None:
                 then()
             return
-        with self._lock:
-            self._triggers[trigger_id] = record
-            if then is not None:
-                self._written.append(then)
-            self._wake.notify()
-        if self._thread is None:  # not started, or closed: written here
-            self._write_now()
+        # A dict is copied: its owner goes on changing it on the ROS thread (the writer serialises it).
+        self._writer.submit((table.name, key), dict(doc) if isinstance(doc, dict) else doc, then)
 
-    @property
-    def pending(self) -> int:
-        return len(self._faults) + len(self._events) + len(self._triggers) + (1 if self._busy else 0)
+    def _bound(self, pending: dict[tuple[str, Any], Any]) -> None:
+        """What waits for the writer of a ``keep`` table: its newest ``keep`` rows (a disk that fails)."""
+        for table in self._tables.values():
+            if table.keep and len(pending) > table.keep:
+                keys = sorted(k for k in pending if k[0] == table.name)
+                for key in keys[:-table.keep]:
+                    del pending[key]
 
     def close(self, timeout: float) -> None:
         """Write what is pending (waiting up to ``timeout`` s), then close the file."""
-        with self._lock:
-            self._closing = True
-            self._wake.notify()
-        if self._thread is not None:
-            self._thread.join(timeout)
-            if self._thread.is_alive():
-                log.warning("fault store: the last writes did not finish within %g s", timeout)
-                return
-        self._write_now()  # never started (or the writer gave up): what is pending is written here
+        if not self._writer.close(timeout):
+            return
         self._close_db()
         self.enabled = False
 
-    def _write_now(self) -> None:
-        """Write what is pending on the calling thread (no writer thread runs)."""
-        with self._lock:
-            faults, self._faults = self._faults, {}
-            events, self._events = self._events, []
-            triggers, self._triggers = self._triggers, {}
-            then, self._written = self._written, []
-        if self._db is None or not (faults or events or triggers):
-            for fn in then:
-                fn()
-            return
-        try:
-            self._write(faults, events, triggers)
-            self.writes += 1
-        except sqlite3.Error as exc:
-            self.write_errors += 1
-            self.last_write_error = f"{type(exc).__name__}: {exc}"[:300]
-            log.error("store %s: a write failed (%s)", self.path, exc)
-        for fn in then:
-            fn()
-
     # ---- the writer thread -------------------------------------------------------------------------
-    def _run(self) -> None:
-        while True:
-            with self._lock:
-                while not self._faults and not self._events and not self._triggers and not self._closing:
-                    self._wake.wait()
-                if not self._faults and not self._events and not self._triggers:
-                    return
-                faults, self._faults = self._faults, {}
-                events, self._events = self._events, []
-                triggers, self._triggers = self._triggers, {}
-                then, self._written = self._written, []
-                self._busy = True
-            try:
-                self._write(faults, events, triggers)
-                self.writes += 1
-                for fn in then:
-                    fn()
-            except sqlite3.Error as exc:
-                self.write_errors += 1
-                self.last_write_error = f"{type(exc).__name__}: {exc}"[:300]
-                if self.write_errors == 1 or self.write_errors % 100 == 0:
-                    log.error("fault store %s: write failed (%s; %d failures so far); retrying in %g s",
-                              self.path, exc, self.write_errors, RETRY_AFTER)
-                with self._lock:
-                    for code, record in faults.items():
-                        self._faults.setdefault(code, record)  # a newer state of a fault wins
-                    for trigger_id, doc in triggers.items():
-                        self._triggers.setdefault(trigger_id, doc)
-                    self._written[:0] = then
-                    self._events[:0] = events
-                    del self._events[:-MAX_EVENTS]
-                    closing = self._closing
-                if closing:
-                    return
-                time.sleep(RETRY_AFTER)
-            finally:
-                self._busy = False
+    def _failed(self, exc: Exception) -> None:
+        errors = self._writer.errors
+        if errors == 1 or errors % 100 == 0:
+            log.error("store %s: write failed (%s; %d failures so far); retrying in %g s",
+                      self.path, exc, errors, RETRY_AFTER)
 
-    def _write(self, faults: dict[str, dict[str, Any] | None], events: list[tuple[int, dict[str, Any]]],
-               triggers: dict[str, bytes | None]) -> None:
+    def _write(self, batch: dict[tuple[str, Any], Any]) -> None:
         db = self._db
+        if db is None:
+            return
         now = time.time_ns()
         db.execute("BEGIN IMMEDIATE")
         try:
-            deleted = [(code,) for code, record in faults.items() if record is None]
-            if deleted:
-                db.executemany("DELETE FROM faults WHERE code = ?", deleted)
-            rows = [(code, json.dumps(record, separators=(",", ":")), now)
-                    for code, record in faults.items() if record is not None]
-            if rows:
-                db.executemany("INSERT INTO faults (code, doc, updated_ns) VALUES (?, ?, ?) ON CONFLICT(code) "
-                               "DO UPDATE SET doc = excluded.doc, updated_ns = excluded.updated_ns", rows)
-            if events:
-                db.executemany("INSERT OR REPLACE INTO events (id, doc) VALUES (?, ?)",
-                               [(i, json.dumps(e, separators=(",", ":"))) for i, e in events])
-                db.execute("DELETE FROM events WHERE id <= ?", (events[-1][0] - MAX_EVENTS,))
-            gone = [(i,) for i, doc in triggers.items() if doc is None]
-            if gone:
-                db.executemany("DELETE FROM triggers WHERE id = ?", gone)
-            kept = [(i, doc.decode()) for i, doc in triggers.items() if doc is not None]
-            if kept:
-                db.executemany("INSERT OR REPLACE INTO triggers (id, doc) VALUES (?, ?)", kept)
+            for table in self._tables.values():
+                rows = [(key, doc) for (name, key), doc in batch.items() if name == table.name]
+                if not rows:
+                    continue
+                gone = [(key,) for key, doc in rows if doc is None]
+                if gone:
+                    db.executemany(table.delete, gone)
+                kept = [(key, _text(doc)) + ((now,) if table.stamped else ()) for key, doc in rows
+                        if doc is not None]
+                if kept:
+                    db.executemany(table.upsert, kept)
+                if table.keep and kept:
+                    db.execute(table.trim, (max(k for k, *_ in kept) - table.keep,))
             db.execute("COMMIT")
         except BaseException:
             try:
@@ -324,6 +264,14 @@ class FaultStore:
             except sqlite3.Error:
                 pass
             raise
+
+
+def _text(doc: Any) -> str:
+    if isinstance(doc, bytes):
+        return doc.decode()
+    if isinstance(doc, str):
+        return doc
+    return json.dumps(doc, separators=(",", ":"))
 
 
 def make_private_dir(path: str) -> None:

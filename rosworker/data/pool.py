@@ -23,7 +23,7 @@ byte budget the cached JSON of the least recently read entries goes first,
 then whole entries.
 
 The gateway's own endpoints (its subscriptions here, its publishers for PUT)
-never count as a topic's publishers or subscribers (``graph.Endpoints``).
+never count as a topic's publishers or subscribers (``core/endpoints.py``).
 
 Evictions: graph change (no publisher left, or the type changed), LRU at
 the cap (never an entry somebody waits on: when every entry has waiters, a
@@ -43,8 +43,8 @@ from rclpy.serialization import deserialize_message
 
 from ipc.errors import IpcError
 
+from ..core.endpoints import Endpoints
 from ..core.executor import RosExecutor, Task, Timer
-from ..core.graph import Endpoints
 from ..core.stats import Stats
 from ..ros import msgtypes, qos
 from ..ros.encode import to_json

@@ -34,8 +34,8 @@ import time
 
 from ipc.errors import IpcError
 
+from ..core.endpoints import Endpoints
 from ..core.executor import RosExecutor, Task, Timer
-from ..core.graph import Endpoints
 from ..core.stats import Stats
 from ..ros import msgtypes, qos
 from ..ros.decode import from_plain

@@ -1,6 +1,6 @@
 """Faults left by nodes that are not on the graph: loaded from the fault store, nobody reports them.
 
-The fault store (``faultstore.py``) outlives the gateway, and every gateway of a user or a robot
+The fault store (``store.py``) outlives the gateway, and every gateway of a user or a robot
 that shares a state directory opens the same ``faults.db``.  A fault loaded from it whose nodes
 are not on this gateway's graph is one nobody will report again: an earlier run's, another
 robot's, a node that died.  Each such fault goes stale (CRITICAL) after ``fault_stale_s`` and
@@ -25,7 +25,7 @@ from __future__ import annotations
 import logging
 from typing import Any
 
-from .manager import ACTIVE, TOPIC
+from .model import ACTIVE, TOPIC
 
 log = logging.getLogger("sovd.rosworker.faults")
 
@@ -77,7 +77,10 @@ class LeftFaults:
 
     def check(self) -> None:
         codes, nodes = self.absent()
-        self.stats.faults_left = {"left_by_absent_nodes": len(codes), "absent_nodes": nodes[:NODES_SHOWN]}
+        left = {"left_by_absent_nodes": len(codes), "absent_nodes": nodes[:NODES_SHOWN]}
+        if left != self.manager.left:
+            self.manager.left = left
+            self.manager.publish_stats()
         if codes and not self.warned:
             self.warned = True
             more = f" and {len(nodes) - NODES_SHOWN} more" if len(nodes) > NODES_SHOWN else ""

@@ -1,4 +1,4 @@
-"""Faults: the robot's ``/diagnostics`` as SOVD faults, kept in the fault store (``faultstore.py``).
+"""Faults: the robot's ``/diagnostics`` as SOVD faults, kept in the state dir's store (``store.py``).
 
 One subscription to ``/diagnostics`` (``diagnostic_msgs/msg/DiagnosticArray``,
 reliable, depth ``DEPTH``), no callback: a timer on the ROS thread takes at
@@ -14,14 +14,9 @@ The mapping is medkit's diagnostic bridge's:
 - the fault code is the status name upper-cased, every run of other
   characters than letters and digits one ``_`` (``motor: Temperature`` ->
   ``MOTOR_TEMPERATURE``), or what ``fault_codes`` names for it;
-- the reporting source: the ``hardware_id`` when it contains ``/`` (a node
-  name, medkit's ``use_hardware_id_as_source_id``); else the node whose name
-  starts the status name (``diagnostic_updater`` names statuses
-  ``<node name>: <task>``); else, as a guess, the only node that publishes
-  ``/diagnostics`` (one whose name discovery does not know yet is no node);
-  else ``/diagnostics`` itself (rclpy does not say which publisher sent a
-  message).  A guess is replaced, not joined, by the first source the status
-  itself names: one status is one source, not two.
+- the reporting source: the node the status names, else a guess
+  (``sources.py``).  A guess is replaced, not joined, by the first source the
+  status itself names: one status is one source, not two.
 
 The lifecycle (medkit's fault manager's states): a failing report makes a
 new fault PREFAILED (``occurrence_count`` 1); it is CONFIRMED after
@@ -44,11 +39,9 @@ statuses; past that the least recently reported one that is not a fault the
 gateway holds goes, so every held fault can still go stale under a flood of
 new names.
 
-At confirmation a freeze frame is taken: the status's key/value pairs, and
-the newest message of each topic that ``fault_snapshot_topics`` names for the
-code (read from the pool; the topics are pooled when the fault turns
-PREFAILED, so that they have a message by then).  ``SNAPSHOTS_MAX`` frames of
-at most ``SNAPSHOT_BYTES`` each per fault.
+At confirmation freeze frames are taken (``snapshots.py``): the status's
+key/value pairs, and the newest message of each topic that
+``fault_snapshot_topics`` names for the code.
 
 Events (``fault_confirmed``, ``fault_updated``, ``fault_cleared``) get ids
 that never go backwards: a start's ids begin at its epoch (the wall clock in
@@ -58,16 +51,14 @@ is in memory only (an unwritable state dir, a corrupt file moved aside).  They
 stay plain integers (the SSE ``id:``, ``Last-Event-ID``).  Events are kept
 (``MAX_EVENTS``, also in the store) for ``Last-Event-ID`` replay, and are
 published on the events channel (``ipc/events.py``, key ``f|``) for the HTTP
-workers' fault streams.
+workers' fault streams; the observers of ``faults`` (triggers, ``observable.py``)
+are told of each.
 """
 
 from __future__ import annotations
 
 import collections
-import fnmatch
-import json
 import logging
-import re
 import time
 from collections.abc import Callable
 from typing import Any
@@ -76,12 +67,30 @@ from ipc import events as channel
 from ipc import protocol
 from ipc.errors import IpcError
 
-from ..core.store import MAX_EVENTS, FaultStore
+from .model import (
+    ACTIVE,
+    CLEARED,
+    CODE_MAX,
+    CONFIRMED,
+    HEALED,
+    LABELS,
+    PREFAILED,
+    PREPASSED,
+    STATUSES,
+    TOPIC,
+    TYPE,
+    fault_code,
+    level,
+    parse_codes,
+    public,
+)
+from .observable import FaultObservable
+from .snapshots import FreezeFrames
+from .sources import Attribution
+from .store import MAX_EVENTS, FaultTables
 
 log = logging.getLogger("sovd.rosworker.faults")
 
-TOPIC = "/diagnostics"
-TYPE = "diagnostic_msgs/msg/DiagnosticArray"
 DEPTH = 100                # arrays the subscription holds between two takes
 TAKE_EVERY = 0.05          # seconds between two takes
 TAKE_PER_ROUND = 20        # arrays taken per round at most ...
@@ -91,82 +100,25 @@ STATUSES_PER_ARRAY = 1000  # statuses of one array looked at, at most
 TICK_EVERY = 0.1           # seconds between checks of the timers (confirm by time, stale)
 PERSIST_EVERY = 1.0        # seconds between writes of a fault whose status did not change
 SEEN_PER_FAULT = 2         # statuses whose last report is kept: this many per max_faults
-PUBLISHERS_TTL = 1.0       # seconds the publishers of /diagnostics are cached
-GRAPH_RETRY = 0.1          # seconds between two direct graph queries for a status's unknown node
-CODE_MAX = 256
 SOURCES_MAX = 16           # reporting sources kept per fault
 VALUES_MAX = 64            # key/value pairs of a status kept for its freeze frame
 VALUE_CHARS = 1024
-SNAPSHOTS_MAX = 8          # freeze frames per fault
-SNAPSHOT_BYTES = 64 * 1024
 REFUSED_LOG_EVERY = 60.0
-
-PREFAILED, CONFIRMED, PREPASSED, HEALED, CLEARED = "PREFAILED", "CONFIRMED", "PREPASSED", "HEALED", "CLEARED"
-STATUSES = (PREFAILED, CONFIRMED, PREPASSED, HEALED, CLEARED)
-ACTIVE = (PREFAILED, CONFIRMED, PREPASSED)
-LABELS = {0: "INFO", 1: "WARN", 2: "ERROR", 3: "CRITICAL"}
-_NOT_ALNUM = re.compile(r"[^A-Za-z0-9]+")
-
-
-def fault_code(name: str) -> str:
-    """medkit's generated code: upper case, each run of non-alphanumerics one ``_``, none at the ends."""
-    return _NOT_ALNUM.sub("_", name).strip("_").upper()[:CODE_MAX]
-
-
-def parse_codes(text: str) -> dict[str, str]:
-    """``fault_codes``: ``status name=CODE;other name=CODE2`` -> {name: code}."""
-    out = {}
-    for item in (text or "").split(";"):
-        name, sep, code = item.rpartition("=")
-        if sep and name.strip() and fault_code(code):
-            out[name.strip()] = fault_code(code)
-    return out
-
-
-def parse_snapshot_topics(text: str) -> list[tuple[str, list[str]]]:
-    """``fault_snapshot_topics``: ``CODE_PATTERN=/topic,/topic2;OTHER*=/t3`` -> [(pattern, topics)]."""
-    out = []
-    for item in (text or "").split(";"):
-        pattern, sep, topics = item.partition("=")
-        names = [t.strip() for t in topics.split(",") if t.strip()]
-        if sep and pattern.strip() and names:
-            out.append((pattern.strip(), names[:SNAPSHOTS_MAX]))
-    return out
-
-
-def public(record: dict[str, Any]) -> dict[str, Any]:
-    """A fault as medkit lists it (``fault_to_json``): times in seconds, ``last_passed`` once passed."""
-    out: dict[str, Any] = {
-        "fault_code": record["code"], "severity": record["severity"], "description": record["description"],
-        "first_occurred": record["first_ns"] / 1e9, "last_occurred": record["last_ns"] / 1e9,
-    }
-    if record.get("passed_ns"):
-        out["last_passed"] = record["passed_ns"] / 1e9
-    out.update(occurrence_count=record["count"], status=record["status"],
-               reporting_sources=list(record["sources"]), severity_label=LABELS.get(record["severity"], "UNKNOWN"))
-    return out
-
-
-def _level(value: Any) -> int:
-    if isinstance(value, (bytes, bytearray)):
-        return value[0] if value else 0
-    return int(value)
 
 
 class FaultManager:
     """Every fault, on the ROS thread; the store writes them on its own thread."""
 
-    def __init__(self, node, executor, pool, stats, store: FaultStore, *, graph=None, endpoints=None,
+    def __init__(self, node, executor, samplers, stats, store: FaultTables, *, graph=None, endpoints=None,
                  send: Callable[[list[bytes]], None] = lambda frames: None, confirm_count: int = 3,
                  confirm_s: float = 1.0, heal_count: int = 3, stale_s: float = 10.0, max_faults: int = 1000,
                  codes: str = "", snapshot_topics: str = ""):
         self.node = node
         self.executor = executor
-        self.pool = pool
         self.stats = stats
         self.store = store
-        self.graph = graph
-        self.endpoints = endpoints
+        self.attribution = Attribution(node, graph, endpoints)
+        self.frames = FreezeFrames(samplers, snapshot_topics)
         self.send = send
         self.confirm_count = confirm_count
         self.confirm_s = confirm_s
@@ -174,7 +126,6 @@ class FaultManager:
         self.stale_s = stale_s
         self.max_faults = max_faults
         self.codes = parse_codes(codes)
-        self.snapshot_topics = parse_snapshot_topics(snapshot_topics)
         self.faults: dict[str, dict[str, Any]] = {}
         # code -> [monotonic last report, status name, source, stale already reported, source guessed]
         self.seen: collections.OrderedDict[str, list] = collections.OrderedDict()
@@ -184,18 +135,16 @@ class FaultManager:
         self._dirty: dict[str, float] = {}                 # code -> monotonic of the last write
         self._unwritten: set[str] = set()
         self._code_cache: dict[str, str] = {}
-        self._publishers: tuple[float, list[str]] = (0.0, [])
         self._refused_logged = -REFUSED_LOG_EVERY
-        self._graph_asked = -GRAPH_RETRY
-        self._fresh_nodes: list[str] = []
         self.sub = None
         self.cls = None
         self.arrays = 0
         self.refused = 0
         self._drained = time.monotonic()  # the last moment the subscription's queue was seen empty
-        # faults triggers: set by rosworker/triggers/sources.py while a trigger watches faults, else None
-        self.trigger_hook: Callable[[str, dict[str, Any]], None] | None = None
-        self._publish_stats()
+        # faults as an observable collection (triggers; core/notifier.py): told of every fault event
+        self.observable = FaultObservable(stats)
+        self.left: dict[str, Any] = {}  # /health's counts of the faults left by absent nodes (left.py)
+        self.publish_stats()
 
     # ---- set-up (ROS thread, before the loop) -------------------------------------------------------
     def load(self) -> None:
@@ -214,14 +163,13 @@ class FaultManager:
         # start: a stream that stays open across a ROS worker restart, or a client that reconnects with
         # Last-Event-ID, never takes a new event for one it has (a store in memory only keeps no ids).
         self.next_event_id = max(time.time_ns() // 1000, self.events[-1][0] + 1 if self.events else 1)
-        self._publish_stats()
+        self.publish_stats()
 
     def start(self) -> None:
         from rclpy.qos import QoSProfile, ReliabilityPolicy
 
         from ..ros import msgtypes
 
-        self.store.start()
         self.executor.call_later(TICK_EVERY, self._tick_round)
         try:
             self.cls = msgtypes.load_type(TYPE)
@@ -274,11 +222,11 @@ class FaultManager:
                 if not seen[3] and now - seen[0] >= self.stale_s:
                     seen[3] = True
                     if seen[4]:  # its source was a guess: the graph may know the node its name names by now
-                        seen[2], seen[4] = self._source_of(seen[1], "", lambda seen=seen: seen[2])
+                        seen[2], seen[4] = self.attribution.source_of(seen[1], "", lambda seen=seen: seen[2])
                     self._failed(code, seen[1], 3, f"stale: no report for {self.stale_s:g} s", seen[2], None,
                                  wall, stale=True, guessed=seen[4])
         self._flush()
-        self._publish_stats()
+        self.publish_stats()
 
     # ---- reports ---------------------------------------------------------------------------------------
     def on_array(self, msg) -> None:
@@ -288,7 +236,7 @@ class FaultManager:
             code = self._code(name)
             if not code:
                 continue
-            source, guessed = self._source(status)
+            source, guessed = self.attribution.source(status)
             seen = self.seen.get(code)
             if seen is None:
                 self._make_room_in_seen()
@@ -296,14 +244,14 @@ class FaultManager:
             else:
                 seen[0], seen[1], seen[2], seen[3], seen[4] = now, name, source, False, guessed
                 self.seen.move_to_end(code)
-            level = _level(status.level)
-            if level == 0:
+            status_level = level(status.level)
+            if status_level == 0:
                 self._passed(code, wall)
                 continue
-            values = {"level": level, "name": name, "message": status.message[:VALUE_CHARS],
+            values = {"level": status_level, "name": name, "message": status.message[:VALUE_CHARS],
                       "hardware_id": status.hardware_id[:VALUE_CHARS],
                       "values": {kv.key[:VALUE_CHARS]: kv.value[:VALUE_CHARS] for kv in status.values[:VALUES_MAX]}}
-            self._failed(code, name, min(level, 3), status.message[:VALUE_CHARS], source, values, wall,
+            self._failed(code, name, min(status_level, 3), status.message[:VALUE_CHARS], source, values, wall,
                          guessed=guessed)
 
     def _make_room_in_seen(self) -> None:
@@ -326,51 +274,6 @@ class FaultManager:
             self._code_cache[name] = code
         return code
 
-    def _source(self, status) -> tuple[str, bool]:
-        """``(source, guessed)``: the node the status names (its hardware_id, or the node its name
-        starts with), else a guess (the only publisher of /diagnostics, or the topic itself)."""
-        return self._source_of(status.name, status.hardware_id, self._only_publisher)
-
-    def _source_of(self, name: str, hardware_id: str, guess: Callable[[], str]) -> tuple[str, bool]:
-        if "/" in hardware_id:
-            return hardware_id[:CODE_MAX], False
-        prefix, sep, _ = name.partition(":")
-        if sep and prefix.strip():
-            matches = self._nodes_named(prefix.strip())
-            if len(matches) == 1:
-                return matches[0], False
-        return guess(), True
-
-    def _only_publisher(self) -> str:
-        publishers = self._diagnostics_publishers()
-        return publishers[0] if len(publishers) == 1 else TOPIC
-
-    def _nodes_named(self, name: str) -> list[str]:
-        """The graph's nodes called ``name``; asked again (at most every GRAPH_RETRY s) on a miss,
-        since the graph monitor's last poll may predate a driver that just started."""
-        nodes = list(self.graph.nodes) if self.graph is not None else []
-        matches = [n for n in nodes if n.rsplit("/", 1)[-1] == name]
-        now = time.monotonic()
-        if not matches and self.node is not None and now - self._graph_asked >= GRAPH_RETRY:
-            self._graph_asked = now
-            self._publishers = (0.0, [])   # the publishers of /diagnostics are asked again too
-            fresh = [(ns.rstrip("/") + "/" + n) for n, ns in self.node.get_node_names_and_namespaces()]
-            self._fresh_nodes = fresh
-        if not matches:
-            matches = [n for n in self._fresh_nodes if n.rsplit("/", 1)[-1] == name]
-        return matches
-
-    def _diagnostics_publishers(self) -> list[str]:
-        when, names = self._publishers
-        now = time.monotonic()
-        if now - when >= PUBLISHERS_TTL and self.endpoints is not None:
-            infos = self.endpoints.publishers(TOPIC)
-            # An endpoint found before its node is named "_NODE_NAME_UNKNOWN_": no node, no source.
-            names = sorted({(i.node_namespace.rstrip("/") + "/" + i.node_name) for i in infos
-                            if not i.node_name.startswith("_NODE_NAME_UNKNOWN")})
-            self._publishers = (now, names)
-        return names
-
     def _failed(self, code: str, name: str, severity: int, message: str, source: str,
                 values: dict[str, Any] | None, wall: int, stale: bool = False, guessed: bool = False) -> None:
         record = self.faults.get(code)
@@ -382,16 +285,16 @@ class FaultManager:
                 "code": code, "name": name, "severity": severity, "description": message, "first_ns": wall,
                 "last_ns": wall, "passed_ns": 0, "count": 1, "status": PREFAILED, "sources": [source],
                 "snapshots": [], "fails": 1, "oks": 0, "since_ns": wall, "confirmed": False, "guessed": guessed}
-            self._warm(code)
+            self.frames.warm(code)
             changed = True
         elif record["status"] == CLEARED:  # reported again after a clear: a new occurrence (medkit's)
             record.update(status=PREFAILED, first_ns=wall, fails=1, oks=0, since_ns=wall, confirmed=False,
                           count=min(record["count"] + 1, 2**32 - 1))
-            self._warm(code)
+            self.frames.warm(code)
             changed = True
         elif record["status"] == HEALED:  # failing again after it healed: the same occurrence
             record.update(status=PREFAILED, fails=1, oks=0, since_ns=wall, confirmed=False)
-            self._warm(code)
+            self.frames.warm(code)
             changed = True
         elif record["status"] == PREPASSED:
             record.update(oks=0, fails=record["fails"] + 1,
@@ -447,7 +350,7 @@ class FaultManager:
     def _confirm(self, record: dict[str, Any], wall: int, stale: bool = False) -> None:
         record["status"] = CONFIRMED
         record["confirmed"] = True
-        record["snapshots"] = self._snapshots(record, wall, stale)
+        record["snapshots"] = self.frames.take(record, self.values.get(record["code"]), wall, stale)
         self._event("fault_confirmed", record)
         self._write(record["code"])
 
@@ -472,52 +375,6 @@ class FaultManager:
                         "raise max_faults or clear faults", self.max_faults, self.refused)
         return False
 
-    # ---- snapshots -----------------------------------------------------------------------------------
-    def _topics_for(self, code: str) -> list[str]:
-        out: list[str] = []
-        for pattern, topics in self.snapshot_topics:
-            if fnmatch.fnmatchcase(code, pattern):
-                out.extend(t for t in topics if t not in out)
-        return out[:SNAPSHOTS_MAX - 1]
-
-    def _warm(self, code: str) -> None:
-        """Pool the code's snapshot topics now, so that they have a message at confirmation."""
-        for topic in self._topics_for(code):
-            try:
-                self.pool.subscribe(topic)
-            except IpcError as exc:
-                log.debug("snapshot topic %s: %s", topic, exc.message)
-
-    def _snapshots(self, record: dict[str, Any], wall: int, stale: bool) -> list[dict[str, Any]]:
-        code = record["code"]
-        frames = []
-        values = self.values.get(code)
-        if values is not None and not stale:
-            frames.append(self._frame(record["name"], TOPIC, "diagnostic_msgs/msg/DiagnosticStatus",
-                                      json.dumps(values, separators=(",", ":")), wall))
-        for topic in self._topics_for(code):
-            try:
-                result = self.pool.peek(topic, "array")
-            except IpcError as exc:
-                frames.append({**self._frame(topic, topic, "", "{}", wall), "error": exc.message[:300]})
-                continue
-            if result is None or result.get("status") != "data":
-                continue
-            text = bytes(result["data_json"])
-            frames.append(self._frame(topic, topic, result.get("type") or "", text.decode("utf-8", "replace"),
-                                      wall))
-        return frames[:SNAPSHOTS_MAX]
-
-    @staticmethod
-    def _frame(name: str, topic: str, message_type: str, data: str, wall: int) -> dict[str, Any]:
-        frame: dict[str, Any] = {"type": "freeze_frame", "name": name, "topic": topic,
-                                 "message_type": message_type, "captured_at_ns": wall}
-        if len(data) > SNAPSHOT_BYTES:
-            frame.update(data="{}", truncated=len(data))
-        else:
-            frame["data"] = data
-        return frame
-
     # ---- events and writes ------------------------------------------------------------------------------
     def _event(self, event_type: str, record: dict[str, Any]) -> None:
         event_id = self.next_event_id
@@ -526,16 +383,15 @@ class FaultManager:
         self.events.append((event_id, event))
         self.store.event(event_id, event)
         self.send([channel.FAULT_KEY, protocol.pack({"id": event_id, **event})])
-        hook = self.trigger_hook  # faults triggers: evaluated on the event, nothing when none watches
-        if hook is not None:
-            self.executor.guarded("the faults triggers", hook, event_type, event["fault"])
+        if self.observable.observers:  # faults triggers: evaluated on the event, nothing when none watches
+            self.executor.guarded("the faults triggers", self.observable.on_fault, event_type, event["fault"])
 
     def _write(self, code: str, changed: bool = True) -> None:
         self._unwritten.discard(code)
         self._dirty[code] = time.monotonic()
         self.store.put(code, self.faults[code])
         if changed:  # a status changed: /health shows it at once
-            self._publish_stats()
+            self.publish_stats()
 
     def _flush(self, force: bool = False) -> None:
         """Write the faults whose last report changed only their times, at most every PERSIST_EVERY s."""
@@ -546,7 +402,7 @@ class FaultManager:
             elif code not in self.faults:
                 self._unwritten.discard(code)
 
-    def _publish_stats(self) -> None:
+    def publish_stats(self) -> None:
         by_severity = dict.fromkeys(LABELS.values(), 0)
         active = confirmed = 0
         for record in self.faults.values():
@@ -555,15 +411,15 @@ class FaultManager:
                 by_severity[LABELS.get(record["severity"], "ERROR")] += 1
             if record["status"] == CONFIRMED:
                 confirmed += 1
-        store = self.store
-        self.stats.faults = {  # replaced whole: the control thread reads it (rosworker/core/stats.py)
+        store = self.store.store
+        self.stats.set_section("faults", {  # replaced whole: the control thread reads it (core/stats.py)
             "active": active, "confirmed": confirmed, "store_size": len(self.faults),
             "max_faults": self.max_faults, "refused": self.refused, "active_by_severity": by_severity,
             "diagnostics_arrays": self.arrays, "store_enabled": store.enabled, "store_path": store.path,
             "store_writes": store.writes, "store_write_errors": store.write_errors,
             "store_pending": store.pending + len(self._unwritten),
-            "last_write_error": store.last_write_error, "moved_aside": store.moved_aside,
-        }
+            "last_write_error": store.last_write_error, "moved_aside": store.moved_aside, **self.left,
+        })
 
     # ---- commands ---------------------------------------------------------------------------------------
     def listing(self, statuses: list[str]) -> list[dict[str, Any]]:
@@ -589,40 +445,10 @@ class FaultManager:
             self._write(code, changed=False)  # /health once, below
             cleared.append(code)
         if cleared:
-            self._publish_stats()
+            self.publish_stats()
         return cleared
 
     def events_after(self, after: int) -> list[dict[str, Any]]:
         return [{"id": i, **e} for i, e in self.events if i > after]
 
 
-# ---- the queued commands (ipc/PROTOCOL.md "Faults"); the HTTP side has checked what a client sent ----
-def _codes(value: Any) -> list[str]:
-    if not isinstance(value, list) or len(value) > 100_000 or not all(
-            isinstance(c, str) and 0 < len(c) <= CODE_MAX for c in value):
-        raise IpcError("bad-request", f"codes: expected a list of fault codes of 1 to {CODE_MAX} characters")
-    return value
-
-
-def handlers(manager: FaultManager) -> dict[str, Callable]:
-    """``fault_list``, ``fault_get``, ``fault_clear`` and ``fault_events``: name -> handler(task)."""
-    def fault_list(task) -> None:
-        statuses = task.args.get("statuses")
-        if not isinstance(statuses, list) or not all(s in STATUSES for s in statuses):
-            raise IpcError("bad-request", "statuses: expected a list of " + ", ".join(STATUSES))
-        task.reply({"items": manager.listing(statuses)})
-
-    def fault_get(task) -> None:
-        task.reply(manager.get(_codes([task.args.get("code")])[0]))
-
-    def fault_clear(task) -> None:
-        task.reply({"cleared": manager.clear(_codes(task.args.get("codes")))})
-
-    def fault_events(task) -> None:
-        after = task.args.get("after", 0)
-        if isinstance(after, bool) or not isinstance(after, int) or after < 0:
-            raise IpcError("bad-request", "after: expected an event id (a non-negative integer)")
-        task.reply({"events": manager.events_after(after), "next_id": manager.next_event_id})
-
-    return {"fault_list": fault_list, "fault_get": fault_get, "fault_clear": fault_clear,
-            "fault_events": fault_events}

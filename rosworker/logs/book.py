@@ -42,6 +42,7 @@ from typing import Any
 
 from ipc.errors import IpcError
 
+from ..core import args as check
 from ..core.executor import RosExecutor, Task
 from ..core.stats import Stats
 
@@ -59,6 +60,7 @@ ENTRY_OVERHEAD = 120      # bytes counted per entry besides its strings
 MAX_CONFIGS = 10000       # entities with a configuration of their own
 DROPPED_NAMES_LOGGED = 100  # nodes whose dropped lines are logged (once each)
 SEVERITIES = {"debug": 10, "info": 20, "warning": 30, "error": 40, "fatal": 50}
+LEVELS = {level: name for name, level in SEVERITIES.items()}
 DEFAULT_CONFIG = {"severity_filter": "debug", "max_entries": 100}   # medkit's LogConfig{}
 MAX_ENTRIES = 10000
 # One entry on the wire: [id, sec, nanosec, level, name, msg, file, function, line].
@@ -138,8 +140,10 @@ class LogBook:
         self.configs: dict[str, dict[str, Any]] = {}
         self.sub = None
         self._cls = None
-        # logs triggers: set by rosworker/triggers/sources.py while a trigger watches logs, else None
-        self.trigger_hook: Callable[[Entry], None] | None = None
+        # logs as an observable collection (triggers; core/notifier.py): told of every line while watched
+        from .observable import LogObservable
+
+        self.observable = LogObservable(stats)
         stats.logs_buffer_size = buffer_size
         stats.logs_max_bytes = max_bytes
         stats.logs_max_nodes = max_nodes
@@ -237,9 +241,8 @@ class LogBook:
             self._order = collections.deque(e for e in self._order if e.live)
         self.stats.logs_buffered = self._live
         self.stats.logs_bytes = self.nbytes
-        hook = self.trigger_hook  # logs triggers: evaluated on the line, nothing when none watches
-        if hook is not None:
-            self.executor.guarded("the logs triggers", hook, entry)
+        if self.observable.observers:  # logs triggers: evaluated on the line, nothing when none watches
+            self.executor.guarded("the logs triggers", self.observable.on_line, entry)
 
     def _retire(self, entry: Entry) -> None:
         entry.live = False
@@ -283,10 +286,8 @@ class LogBook:
 
     def query_cmd(self, task: Task) -> None:
         args = task.args
-        entity_id = _text(args, "entity_id", 256)
-        fqns = args.get("nodes")
-        if not isinstance(fqns, list) or len(fqns) > 100000 or not all(isinstance(f, str) for f in fqns):
-            raise IpcError("bad-request", "nodes: expected a list of node names")
+        entity_id = check.string(args, "entity_id", limit=256)
+        fqns = check.strings(args, "nodes", 100000, "a list of node names")
         severity = args.get("severity") or ""
         if severity and severity not in SEVERITIES:
             raise IpcError("bad-request", "severity: expected one of " + ", ".join(SEVERITIES))
@@ -299,10 +300,10 @@ class LogBook:
         task.reply({"rows": self.query(loggers, min_level, context, cfg["max_entries"])})
 
     def config_get_cmd(self, task: Task) -> None:
-        task.reply(self.config(_text(task.args, "entity_id", 256)))
+        task.reply(self.config(check.string(task.args, "entity_id", limit=256)))
 
     def config_set_cmd(self, task: Task) -> None:
-        entity_id = _text(task.args, "entity_id", 256)
+        entity_id = check.string(task.args, "entity_id", limit=256)
         cfg = self.config(entity_id)
         severity = task.args.get("severity_filter")
         if severity is not None:
@@ -311,9 +312,7 @@ class LogBook:
             cfg["severity_filter"] = severity
         entries = task.args.get("max_entries")
         if entries is not None:
-            if isinstance(entries, bool) or not isinstance(entries, int) or not 1 <= entries <= MAX_ENTRIES:
-                raise IpcError("bad-request", f"max_entries: expected an integer from 1 to {MAX_ENTRIES}")
-            cfg["max_entries"] = entries
+            cfg["max_entries"] = check.integer(task.args, "max_entries", 1, MAX_ENTRIES)
         self.configs.pop(entity_id, None)
         if len(self.configs) >= MAX_CONFIGS:
             self.configs.pop(next(iter(self.configs)))
@@ -328,13 +327,6 @@ class LogBook:
 
 def _newest_first(entry: Entry) -> int:
     return -entry.id
-
-
-def _text(args: dict, name: str, limit: int) -> str:
-    value = args.get(name)
-    if not isinstance(value, str) or not value or len(value) > limit:
-        raise IpcError("bad-request", f"{name}: expected a string of 1 to {limit} characters")
-    return value
 
 
 def _never_called(_msg) -> None:  # pragma: no cover - the subscription is never spun

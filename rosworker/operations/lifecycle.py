@@ -23,8 +23,9 @@ from typing import Any
 
 from ipc.errors import IpcError
 
+from ..core import args
 from ..core.executor import Task
-from .commands import load_interface
+from .interfaces import load_interface
 from .services import SETTLE, ServiceClients
 
 GET_STATE = "lifecycle_msgs/srv/GetState"
@@ -84,9 +85,7 @@ class LifecycleStates:
             self._unanswered.popitem(last=False)
 
     def cmd_state(self, task: Task) -> None:
-        fqn = task.args.get("node")
-        if not isinstance(fqn, str) or not fqn.startswith("/") or fqn.endswith("/") or len(fqn) > 1024:
-            raise IpcError("bad-request", "node: expected a fully qualified node name (/namespace/name)")
+        fqn = args.node(task.args)
         namespace, _, name = fqn.rpartition("/")
         try:
             services = self.node.get_service_names_and_types_by_node(name, namespace or "/")

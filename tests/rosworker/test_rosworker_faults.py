@@ -7,7 +7,6 @@ wall clock the manager reads.
 
 from __future__ import annotations
 
-import os
 import sqlite3
 import time
 import types
@@ -16,26 +15,42 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
 from ipc import events, protocol
-from rosworker.core.store import FaultStore
+from rosworker.core.store import Store
 from rosworker.faults import manager as mod
-from rosworker.faults.manager import FaultManager, fault_code, parse_codes, parse_snapshot_topics
+from rosworker.faults import snapshots
+from rosworker.faults.manager import FaultManager
+from rosworker.faults.model import fault_code, parse_codes, parse_snapshot_topics
+from rosworker.faults.store import FaultTables
 
 
 class Stats:
     faults: dict = {}
 
+    def set_section(self, name, part):
+        setattr(self, name, part)
+
 
 class Pool:
+    """The core's samplers as the freeze frames use them: ``data`` topics warmed and read."""
+
     def __init__(self):
         self.subscribed: list[str] = []
         self.samples: dict[str, dict] = {}
 
-    def subscribe(self, topic):
+    def warm(self, kind, topic):
+        assert kind == "data"
         self.subscribed.append(topic)
-        return {"status": "pooled"}
 
-    def peek(self, topic, mode):
+    def read(self, kind, topic, mode):
+        assert kind == "data"
         return self.samples.get(topic)
+
+
+def tables(path) -> FaultTables:
+    """The faults' tables in a store opened on ``path`` (the core opens it before the families start)."""
+    store = Store(str(path))
+    store.open()
+    return FaultTables(store)
 
 
 def array(*statuses) -> DiagnosticArray:
@@ -55,7 +70,7 @@ def make(tmp_path):
 
     def build(**options) -> FaultManager:
         sent: list[list[bytes]] = []
-        manager = FaultManager(None, None, options.pop("pool", Pool()), Stats(), FaultStore(str(tmp_path)),
+        manager = FaultManager(None, None, options.pop("pool", Pool()), Stats(), tables(tmp_path),
                                send=sent.append, **options)
         manager.sent = sent
         manager.load()
@@ -64,7 +79,7 @@ def make(tmp_path):
 
     yield build
     for manager in made:
-        manager.store.close(5)
+        manager.store.store.close(5)
 
 
 def status(manager, code):
@@ -118,10 +133,10 @@ def test_a_node_found_after_the_first_report_replaces_the_topic_as_its_source(ma
     m = make(confirm_count=3, confirm_s=3600, heal_count=2)
     m.on_array(array(("drive: motor", 2)))       # the graph does not know the node yet: the topic stands in
     assert m.faults["DRIVE_MOTOR"]["sources"] == ["/diagnostics"]
-    m.graph = types.SimpleNamespace(nodes=["/fleet/drive"])
+    m.attribution.graph = types.SimpleNamespace(nodes=["/fleet/drive"])
     m.on_array(array(("drive: motor", 2)))
     assert m.faults["DRIVE_MOTOR"]["sources"] == ["/fleet/drive"]
-    m.graph = types.SimpleNamespace(nodes=[])    # not found again: a guess neither replaces nor joins it
+    m.attribution.graph = types.SimpleNamespace(nodes=[])    # not found again: a guess neither replaces nor joins it
     m.on_array(array(("drive: motor", 2)))
     assert m.faults["DRIVE_MOTOR"]["sources"] == ["/fleet/drive"]
     m.on_array(array(("drive: motor", 2, {}, "/fleet/other")))  # another node the status names joins
@@ -171,7 +186,7 @@ def test_silence_is_judged_against_what_was_taken_not_against_the_clock(make):
 def test_a_stale_status_whose_node_came_into_the_graph_since_is_that_node_s(make):
     m = make(confirm_count=1, stale_s=5)
     m.on_array(array(("dead: motor", 0)))          # reported before the graph knew the node: a guess
-    m.graph = types.SimpleNamespace(nodes=["/base/dead"])
+    m.attribution.graph = types.SimpleNamespace(nodes=["/base/dead"])
     m.tick(time.monotonic() + 6)                   # silent since: stale, from the node it names
     assert m.faults["DEAD_MOTOR"]["description"].startswith("stale")
     assert m.faults["DEAD_MOTOR"]["sources"] == ["/base/dead"]
@@ -191,18 +206,18 @@ def test_a_flood_of_new_names_never_pushes_a_held_fault_out_of_the_stale_watch(m
 def test_an_endpoint_discovered_before_its_node_is_no_source(make):
     publishers = [types.SimpleNamespace(node_namespace="_NODE_NAMESPACE_UNKNOWN_", node_name="_NODE_NAME_UNKNOWN_")]
     m = make(confirm_count=3)
-    m.endpoints = types.SimpleNamespace(publishers=lambda topic: list(publishers))
+    m.attribution.endpoints = types.SimpleNamespace(publishers=lambda topic: list(publishers))
     m.on_array(array(("calibrator: probe", 2)))    # the node is not known yet, nor the publisher's name
     assert m.faults["CALIBRATOR_PROBE"]["sources"] == ["/diagnostics"]
     publishers[0] = types.SimpleNamespace(node_namespace="/", node_name="calibrator")
-    m._publishers = (0.0, [])
+    m.attribution._publishers = (0.0, [])
     m.on_array(array(("calibrator: probe", 2)))    # the only publisher, named now: a better guess
     assert m.faults["CALIBRATOR_PROBE"]["sources"] == ["/calibrator"]
     publishers.append(types.SimpleNamespace(node_namespace="/", node_name="other"))
-    m._publishers = (0.0, [])
+    m.attribution._publishers = (0.0, [])
     m.on_array(array(("calibrator: probe", 2)))    # no single publisher: the topic adds nothing
     assert m.faults["CALIBRATOR_PROBE"]["sources"] == ["/calibrator"]
-    m.graph = types.SimpleNamespace(nodes=["/calibrator"])
+    m.attribution.graph = types.SimpleNamespace(nodes=["/calibrator"])
     m.on_array(array(("other: probe", 2, {}, "/elsewhere/node")))
     m.on_array(array(("calibrator: probe", 2)))    # the node the status names: one source, not two
     assert m.faults["CALIBRATOR_PROBE"]["sources"] == ["/calibrator"]
@@ -213,17 +228,17 @@ def test_freeze_frames_are_bounded_in_count_and_bytes(make):
     pool = Pool()
     topics = [f"/t{i}" for i in range(20)]
     for i, topic in enumerate(topics):
-        size = mod.SNAPSHOT_BYTES + 10 if i == 0 else 10
+        size = snapshots.SNAPSHOT_BYTES + 10 if i == 0 else 10
         pool.samples[topic] = {"status": "data", "type": "std_msgs/msg/String",
                                "data_json": b'{"data":"' + b"x" * size + b'"}'}
     m = make(confirm_count=1, snapshot_topics="MOTOR_*=" + ",".join(topics), pool=pool)
     m.on_array(array(("motor: a", 2, {"rpm": "0"})))
     assert pool.subscribed[:3] == ["/t0", "/t1", "/t2"]     # pooled at PREFAILED
     frames = m.faults["MOTOR_A"]["snapshots"]
-    assert len(frames) == mod.SNAPSHOTS_MAX
+    assert len(frames) == snapshots.SNAPSHOTS_MAX
     assert frames[0]["topic"] == "/diagnostics" and '"rpm":"0"' in frames[0]["data"]
-    assert frames[1]["topic"] == "/t0" and frames[1]["truncated"] > mod.SNAPSHOT_BYTES and frames[1]["data"] == "{}"
-    assert all(len(f["data"]) <= mod.SNAPSHOT_BYTES for f in frames)
+    assert frames[1]["topic"] == "/t0" and frames[1]["truncated"] > snapshots.SNAPSHOT_BYTES and frames[1]["data"] == "{}"
+    assert all(len(f["data"]) <= snapshots.SNAPSHOT_BYTES for f in frames)
 
 
 def test_max_faults_drops_the_oldest_done_fault_then_refuses(make):
@@ -241,7 +256,7 @@ def test_the_store_keeps_faults_and_event_ids_across_managers(make, tmp_path):
     m.on_array(array(("kept", 2, {"v": "1"})))
     assert m.clear(["KEPT", "NOPE"]) == ["KEPT"]
     last = m.next_event_id
-    m.store.close(5)
+    m.store.store.close(5)
     again = make()
     assert again.faults["KEPT"]["status"] == "CLEARED" and again.faults["KEPT"]["snapshots"]
     assert again.next_event_id >= last  # never backwards: this start's epoch, or the stored id + 1
@@ -258,56 +273,11 @@ def test_event_ids_never_go_backwards_across_starts_even_with_no_store(tmp_path)
     blocker.write_text("")
     ids = []
     for _ in range(3):  # three starts with a store in memory only (an unwritable state dir)
-        m = FaultManager(None, None, Pool(), Stats(), FaultStore(str(blocker / "sub")), confirm_count=1)
+        m = FaultManager(None, None, Pool(), Stats(), tables(blocker / "sub"), confirm_count=1)
         m.load()
-        assert m.store.enabled is False
+        assert m.store.store.enabled is False
         m.on_array(array(("x", 2)))
         m.clear(["X"])
         ids += [e["id"] for e in m.events_after(0)]
     assert ids == sorted(ids) and len(set(ids)) == len(ids), ids
     assert all(0 < i < 2**53 for i in ids)  # a plain integer a browser reads exactly
-
-
-def test_a_corrupt_file_is_moved_aside(tmp_path, caplog):
-    path = tmp_path / "faults.db"
-    path.write_bytes(b"\x00garbage" * 4096)
-    store = FaultStore(str(tmp_path))
-    assert store.load() == ({}, [])
-    assert store.moved_aside.startswith(str(path) + ".corrupt-") and os.path.exists(store.moved_aside)
-    assert "moved it aside" in caplog.text
-    store.close(1)
-
-
-def test_an_unwritable_state_dir_keeps_faults_in_memory(tmp_path):
-    blocker = tmp_path / "file"
-    blocker.write_text("x")
-    store = FaultStore(str(blocker / "sub"))
-    assert store.load() == ({}, []) and store.enabled is False and store.last_write_error
-    store.put("X", {"code": "X"})   # nothing to write to, nothing raised
-    store.close(1)
-
-
-def test_a_failed_write_is_counted_and_retried(tmp_path, monkeypatch):
-    monkeypatch.setattr("rosworker.core.store.RETRY_AFTER", 0.05)
-    store = FaultStore(str(tmp_path))
-    store.load()
-    store.start()
-    real = store._write
-    calls = {"n": 0}
-
-    def flaky(faults, events_, triggers):
-        calls["n"] += 1
-        if calls["n"] == 1:
-            raise sqlite3.OperationalError("disk I/O error")
-        real(faults, events_, triggers)
-
-    monkeypatch.setattr(store, "_write", flaky)
-    store.put("A", {"code": "A"})
-    deadline = time.monotonic() + 5
-    while store.writes < 1 and time.monotonic() < deadline:
-        time.sleep(0.02)
-    assert store.write_errors == 1 and "disk I/O error" in store.last_write_error and store.writes == 1
-    store.close(5)
-    db = sqlite3.connect(tmp_path / "faults.db")
-    assert db.execute("SELECT code FROM faults").fetchall() == [("A",)]
-    db.close()

@@ -1,8 +1,8 @@
-"""rosworker/core/graph.py: change detection (fingerprint, ``generation``, ``epoch``), the pool's re-checks,
-the cached ``graph`` snapshot, and ``node_names``.
+"""rosworker/core/graph.py: change detection (fingerprint, ``generation``, ``epoch``), what its listeners
+are told (the data family's pool re-checks), the cached ``graph`` snapshot, and ``node_names``.
 
-In-process, against a fake node (``tests/support/rosunit.py``) and a pool that
-records what it is asked; the graph of real nodes in other processes, through a
+In-process, against a fake node (``tests/support/rosunit.py``) and a listener that
+records what it is told; the graph of real nodes in other processes, through a
 real ROS worker, is in tests/rosworker/test_rosworker_pool.py and tests/test_app_e2e.py.
 """
 
@@ -39,7 +39,10 @@ def node():
 def monitor(node):
     pool = RecordingPool()
     stats = Stats(pool_cap=1, cold_wait_cap=1, watchdog_threshold_ms=1000)
-    return GraphMonitor(node, pool, stats)  # as rosworker/main.py builds it
+    graph = GraphMonitor(node, stats)      # as the core builds it
+    graph.on_change(pool.check_graph)      # as the data family listens to it
+    graph.pool = pool
+    return graph
 
 
 def test_the_first_poll_is_a_change_and_later_polls_of_the_same_graph_are_not(monitor, node):

@@ -1,4 +1,4 @@
-"""rosworker/operations/commands.py's pure parts: which services are operations, interface types, the restart
+"""rosworker/operations: its pure parts (which services are operations, interface types, the restart
 record.  The clients themselves are tested through the real gateway (tests/system/test_operations*.py)."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import json
 import pytest
 
 from ipc.errors import IpcError
-from rosworker.operations import commands as operations
+from rosworker.operations import goals, interfaces
 from rosworker.operations.actions import Goal
 
 
@@ -25,7 +25,7 @@ def test_node_operations_leave_out_parameter_type_description_and_hidden_action_
         ("/arm/get_parameters", ["std_srvs/srv/Trigger"]),   # a user's service of that name is one
         ("/arm/untyped", []),
     ]
-    assert operations.node_operations(services) == [
+    assert interfaces.node_operations(services) == [
         {"kind": "service", "path": "/arm/calibrate", "name": "calibrate", "type": "std_srvs/srv/Trigger"},
         {"kind": "service", "path": "/arm/get_parameters", "name": "get_parameters",
          "type": "std_srvs/srv/Trigger"},
@@ -34,25 +34,25 @@ def test_node_operations_leave_out_parameter_type_description_and_hidden_action_
 
 
 def test_interfaces_load_only_from_their_kind_and_from_ros_packages():
-    assert operations.load_interface("std_srvs/srv/Trigger", "srv").__name__ == "Trigger"
-    assert operations.load_interface("test_msgs/action/Fibonacci", "action").__name__ == "Fibonacci"
+    assert interfaces.load_interface("std_srvs/srv/Trigger", "srv").__name__ == "Trigger"
+    assert interfaces.load_interface("test_msgs/action/Fibonacci", "action").__name__ == "Fibonacci"
     for name, kind, code_text in (("std_srvs/srv/Trigger", "action", "Invalid action type"),
                                   ("std_msgs/msg/String", "srv", "Invalid service type"),
                                   ("antigravity/srv/Fly", "srv", "not installed"),
                                   ("std_srvs/srv/Nope", "srv", "not installed"),
                                   ("../srv/X", "srv", "Invalid service type")):
         with pytest.raises(IpcError) as err:
-            operations.load_interface(name, kind)
+            interfaces.load_interface(name, kind)
         assert err.value.code == "type-introspection-failed" and code_text in err.value.message
 
 
 def test_type_info_has_schemas_and_defaults_including_non_finite_floats():
-    info = operations.type_info("test_msgs/srv/BasicTypes", "srv")
+    info = interfaces.type_info("test_msgs/srv/BasicTypes", "srv")
     assert set(info) == {"request", "response", "default_value"}
     assert {"type": "string", "enum": ["NaN", "Infinity", "-Infinity"]} in \
         info["request"]["properties"]["float32_value"]["anyOf"]
     assert info["default_value"]["response"]["int64_value"] == 0
-    assert operations.type_info("nope_pkg/srv/X", "srv") is None
+    assert interfaces.type_info("nope_pkg/srv/X", "srv") is None
 
 
 def test_the_restart_record_reads_every_running_goal_as_lost(tmp_path):
@@ -61,11 +61,11 @@ def test_the_restart_record_reads_every_running_goal_as_lost(tmp_path):
                 "created": 5.0, "message": None},
                {"id": "zz", "action": "/x", "type": "t"},     # not hex: skipped
                {"action": "/x"}]                               # incomplete: skipped
-    (tmp_path / operations.STATE_FILE).write_text(json.dumps(records))
-    [lost] = operations.load_restart(str(tmp_path))
+    (tmp_path / goals.STATE_FILE).write_text(json.dumps(records))
+    [lost] = goals.load_restart(str(tmp_path))
     wire = lost.wire()
     assert wire["id"] == goal.id and wire["status"] == "failed" and wire["ros2_status"] == "unknown"
     assert "restarted" in wire["message"] and wire["created"] == 5.0
-    (tmp_path / operations.STATE_FILE).write_text("{not json")
-    assert operations.load_restart(str(tmp_path)) == []
-    assert operations.load_restart(str(tmp_path / "none")) == []
+    (tmp_path / goals.STATE_FILE).write_text("{not json")
+    assert goals.load_restart(str(tmp_path)) == []
+    assert goals.load_restart(str(tmp_path / "none")) == []

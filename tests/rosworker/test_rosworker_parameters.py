@@ -1,4 +1,4 @@
-"""rosworker/configurations/clients.py's values: ParameterValue <-> JSON, exactly, and the classification of a refusal."""
+"""rosworker/configurations/values.py: ParameterValue <-> JSON, exactly, and the classification of a refusal."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 from rcl_interfaces.msg import ParameterType as T
 
 from ipc.errors import IpcError
-from rosworker.configurations.clients import refused, to_value, type_name, value_json
+from rosworker.configurations.values import refused, to_value, type_name, value_json
 
 CASES = [
     (T.PARAMETER_BOOL, True, "bool"),

@@ -1,6 +1,8 @@
 """rosworker/core/state.py: the restart state's file (round trip, mode, damage), its writer thread, discard.
 
-Real files in a temporary runtime dir and the real writer thread.  That a
+Real files in a temporary runtime dir and the real writer thread (``core/writer.py``, whose own rules
+are in test_rosworker_writer.py).  The parts are the ones the worker has: the core's ``nodes``, the
+data family's ``topics``, the subscriptions' records.  That a
 restarted ROS worker keeps its pool and its subscriptions through this file is
 checked through a real gateway in tests/rosworker/test_rosworker_pool.py and
 tests/app/test_app_streams.py.
@@ -23,9 +25,44 @@ SUB_A = {"id": "sub_a", "topic": "/a", "interval": "fast", "expires_at_ns": 1}
 SUB_B = {"id": "sub_b", "topic": "/b", "interval": "slow", "expires_at_ns": 2}
 
 
-def records(*subs: dict):
-    """The ``records`` callable the registry hands over: its subscriptions' JSON texts."""
-    return lambda: [json.dumps(s).encode() for s in subs]
+class Parts:
+    """What the owners of the parts hold now: the pooled topics, the graph's nodes, the subscriptions
+    (their JSON records and their version); ``asked`` counts the records asked for."""
+
+    def __init__(self):
+        self.topics: list[str] = []
+        self.nodes: list[str] = []
+        self.subs: list[dict] = []
+        self.version = 0
+        self.asked = 0
+
+    def records(self) -> list[bytes]:
+        self.asked += 1
+        return [json.dumps(s).encode() for s in self.subs]
+
+    def set(self, topics=None, nodes=None, subs=None) -> Parts:
+        if topics is not None:
+            self.topics = topics
+        if nodes is not None:
+            self.nodes = nodes
+        if subs is not None:
+            self.subs = subs
+            self.version += 1
+        return self
+
+
+def made(state: RestartState) -> Parts:
+    """``state`` with the worker's three parts, as the core and the families add them."""
+    parts = Parts()
+    state.part("nodes", lambda: parts.nodes)
+    state.part("topics", lambda: parts.topics)
+    state.part("subscriptions", parts.records, records=True, version=lambda: parts.version)
+    return parts
+
+
+def loaded(state: RestartState) -> tuple[list, list, list]:
+    state.load()
+    return state.loaded("topics"), state.loaded("nodes"), state.loaded("subscriptions", records=True)
 
 
 def mode(path) -> int:
@@ -40,36 +77,39 @@ class GatedState(RestartState):
         self.gate = threading.Event()
         self.writes: list[list[str]] = []
 
-    def _write(self, topics, nodes, recs) -> None:
-        self.writes.append(list(topics))
+    def _write_batch(self, batch) -> None:
+        self.writes.append(list(dict((n, v) for n, _, v in batch["state"])["topics"]))
         assert self.gate.wait(10), "the test never opened the gate"
-        super()._write(topics, nodes, recs)
+        super()._write_batch(batch)
 
 
 def test_what_is_saved_loads_back(tmp_path):
     state = RestartState(str(tmp_path))  # no writer thread yet: written on the caller's thread
-    state.submit(["/a", "/b"], ["/n1", "/ns/n2"], 1, records(SUB_A, SUB_B))
-    assert state.load() == (["/a", "/b"], ["/n1", "/ns/n2"], [SUB_A, SUB_B])
+    made(state).set(["/a", "/b"], ["/n1", "/ns/n2"], [SUB_A, SUB_B])
+    state.save()
+    assert loaded(state) == (["/a", "/b"], ["/n1", "/ns/n2"], [SUB_A, SUB_B])
     assert os.path.basename(state.path) == state_mod.FILE_NAME
     assert not os.path.exists(state.path + ".tmp")  # written beside, then renamed over
 
 
 def test_nothing_saved_loads_empty(tmp_path):
-    assert RestartState(str(tmp_path)).load() == ([], [], [])
+    assert loaded(RestartState(str(tmp_path))) == ([], [], [])
 
 
 def test_the_file_is_private_whatever_the_umask_and_an_older_copy(tmp_path):
     state = RestartState(str(tmp_path))
+    parts = made(state)
     with open(state.path + ".tmp", "w") as fh:  # left by a worker killed mid-write, with other bits
         fh.write("half")
     os.chmod(state.path + ".tmp", 0o666)
     old = os.umask(0)
     try:
-        state.submit(["/a"], [], 1, records())
+        parts.set(topics=["/a"])
+        state.save()
     finally:
         os.umask(old)
     assert mode(state.path) == 0o600
-    assert state.load()[0] == ["/a"]
+    assert loaded(state)[0] == ["/a"]
 
 
 @pytest.mark.parametrize("text", [b"", b"{not json", b"\xff\xfe\x00garbage", b"[1, 2, 3]", b"null", b'"a string"',
@@ -78,7 +118,7 @@ def test_a_damaged_file_loads_empty(tmp_path, text):
     state = RestartState(str(tmp_path))
     with open(state.path, "wb") as fh:
         fh.write(text)
-    assert state.load() == ([], [], [])
+    assert loaded(state) == ([], [], [])
 
 
 def test_items_of_the_wrong_kind_are_left_out_and_the_lists_are_capped(tmp_path, monkeypatch):
@@ -86,40 +126,44 @@ def test_items_of_the_wrong_kind_are_left_out_and_the_lists_are_capped(tmp_path,
     with open(state.path, "w") as fh:
         json.dump({"topics": ["/a", 7, None, "/b", ["/c"]], "nodes": [{"n": 1}, "/n"],
                    "subscriptions": [SUB_A, "sub_b", 3, SUB_B]}, fh)
-    assert state.load() == (["/a", "/b"], ["/n"], [SUB_A, SUB_B])
+    assert loaded(state) == (["/a", "/b"], ["/n"], [SUB_A, SUB_B])
     monkeypatch.setattr(state_mod, "MAX_ITEMS", 2)
     with open(state.path, "w") as fh:
         json.dump({"topics": ["/1", "/2", "/3"], "nodes": [], "subscriptions": [SUB_A, SUB_B, SUB_A]}, fh)
-    assert state.load() == (["/2", "/3"], [], [SUB_B, SUB_A])  # the newest kept
+    assert loaded(state) == (["/2", "/3"], [], [SUB_B, SUB_A])  # the newest kept
 
 
 def test_discard_removes_the_file_and_a_half_written_one(tmp_path):
     state = RestartState(str(tmp_path))
-    state.submit(["/a"], [], 1, records(SUB_A))
+    made(state).set(["/a"], [], [SUB_A])
+    state.save()
     with open(state.path + ".tmp", "w") as fh:
         fh.write("half")
     state.discard()
     assert not os.path.exists(state.path) and not os.path.exists(state.path + ".tmp")
-    assert state.load() == ([], [], [])
+    assert loaded(state) == ([], [], [])
     state.discard()  # nothing there: not an error
 
 
 def test_the_writer_coalesces_what_comes_during_a_write_and_answers_each_caller_after_it(tmp_path):
     posted: list = []
     state = GatedState(str(tmp_path), post=lambda fn: (posted.append(threading.current_thread().name), fn()))
+    parts = made(state)
     answered: list[str] = []
     state.start()
     try:
-        state.submit(["/1"], [], 1, records(), then=lambda: answered.append("1"))
+        parts.set(topics=["/1"])
+        state.save(then=lambda: answered.append("1"))
         poll_until(lambda: state.writes == [["/1"]], 5, message="the first write under way")
         for n in "234":  # all three arrive while the first write waits on the disk
-            state.submit([f"/{n}"], [], int(n), records(), then=lambda n=n: answered.append(n))
+            parts.set(topics=[f"/{n}"])
+            state.save(then=lambda n=n: answered.append(n))
         assert answered == []  # nobody is answered before their state is written
         state.gate.set()
         poll_until(lambda: len(answered) == 4, 5, message="every caller answered")
         assert state.writes == [["/1"], ["/4"]]  # 2 and 3 were never written: 4 is newer
         assert answered == ["1", "2", "3", "4"]
-        assert state.load()[0] == ["/4"]
+        assert loaded(state)[0] == ["/4"]
         assert set(posted) == {"restart-state-writer"}  # handed to `post` from the writer thread
     finally:
         state.gate.set()
@@ -127,50 +171,51 @@ def test_the_writer_coalesces_what_comes_during_a_write_and_answers_each_caller_
 
 
 def test_an_unchanged_state_is_not_handed_over_again(tmp_path):
-    calls = []
-
-    def recs():
-        calls.append(1)
-        return [json.dumps(SUB_A).encode()]
-
     state = GatedState(str(tmp_path))
+    parts = made(state).set(["/a"], ["/n"], [SUB_A])
     state.gate.set()
     state.start()
     try:
-        state.submit(["/a"], ["/n"], 5, recs)
+        state.save()
         poll_until(lambda: state.writes, 5, message="the first write")
         answered = []
-        state.submit(["/a"], ["/n"], 5, recs, then=lambda: answered.append(1))
+        state.save(then=lambda: answered.append(1))
         assert answered == [1]           # already written: answered at once, on this thread
-        assert len(calls) == 1           # the records were not even asked for again
-        state.submit(["/a"], ["/n"], 6, recs)  # a new version of the subscriptions
+        assert parts.asked == 1          # the records were not even asked for again
+        parts.set(subs=[SUB_A, SUB_B])   # a new version of the subscriptions
+        state.save()
         poll_until(lambda: len(state.writes) == 2, 5, message="the second write")
-        assert len(calls) == 2
+        assert parts.asked == 2
     finally:
         state.close(5)
 
 
 def test_close_writes_what_is_pending_and_later_submits_write_at_once(tmp_path):
     state = GatedState(str(tmp_path))
+    parts = made(state)
     state.start()
-    state.submit(["/1"], [], 1, records())
+    parts.set(topics=["/1"])
+    state.save()
     poll_until(lambda: state.writes, 5, message="a write under way")
-    state.submit(["/2"], [], 2, records(SUB_A))  # pending behind it
+    parts.set(topics=["/2"], subs=[SUB_A])
+    state.save()  # pending behind it
     state.gate.set()
     state.close(5)
-    assert state.load() == (["/2"], [], [SUB_A])
+    assert loaded(state) == (["/2"], [], [SUB_A])
     answered = []
-    state.submit(["/3"], [], 3, records(), then=lambda: answered.append(1))
-    assert state.load()[0] == ["/3"] and answered == [1]  # on this thread, before submit returns
+    parts.set(topics=["/3"])
+    state.save(then=lambda: answered.append(1))
+    assert loaded(state)[0] == ["/3"] and answered == [1]  # on this thread, before save returns
 
 
 def test_a_failed_write_is_logged_and_the_caller_answered_all_the_same(tmp_path, caplog):
     gone = tmp_path / "gone"  # the runtime dir was removed under the worker
     state = RestartState(str(gone))
+    made(state).set(topics=["/a"])
     state.start()
     answered = threading.Event()
     try:
-        state.submit(["/a"], [], 1, records(), then=answered.set)
+        state.save(then=answered.set)
         assert answered.wait(5)
         poll_until(lambda: "could not save the restart state" in caplog.text, 5, message="the warning")
         assert not gone.exists()

@@ -1,4 +1,4 @@
-"""rosworker/subscriptions/registry.py: tick phase per topic (issue 23).
+"""rosworker/data/ticks.py: tick phase per topic (issue 23).
 
 A topic's ticks follow its messages' arrivals (the received stamp a take gives),
 and the cadence does not change: one frame per interval with the latest value,
@@ -17,7 +17,7 @@ import time
 import pytest
 
 from ipc import events
-from rosworker.subscriptions import registry as streams_module
+from rosworker.data import ticks as streams_module
 from tests.rosworker.test_rosworker_streams import TOPIC, TYPE, FakePool, Setup
 from tests.support.rosunit import RosThread
 
@@ -43,7 +43,7 @@ class ArrivalPool(FakePool):
 def phased(tmp_path):
     with RosThread(tmp_path) as ros:
         setup = Setup(ros)
-        setup.pool = setup.registry.pool = ArrivalPool()
+        setup.pool = setup.ticks.pool = ArrivalPool()
         setup.pool.entries = {}
         yield setup
         setup.close()
@@ -156,8 +156,8 @@ def test_a_watch_that_leaves_ends_its_phase_timer(phased):
     arrive(s, TOPIC, b"{}", 20.0)
     sub = s.create(topic=TOPIC)
     frames(s, "fast", TOPIC, 3)
-    assert s.ros.call(lambda: [k for k, g in s.registry._groups.items() if k[1] is not None and g])
+    assert s.ros.call(lambda: [k for k, g in s.ticks._groups.items() if k[1] is not None and g])
     s.ros.call(s.registry.delete, "apps", "temp_sensor", sub["id"])
     time.sleep(0.2)   # past the phase group's next tick (the timer ends there; nothing to wait on)
-    assert s.ros.call(lambda: [k for k in s.registry._groups if k[1] is not None]) == []
-    assert s.ros.call(lambda: dict(s.registry._phases)) == {}
+    assert s.ros.call(lambda: [k for k in s.ticks._groups if k[1] is not None]) == []
+    assert s.ros.call(lambda: dict(s.ticks._phases)) == {}

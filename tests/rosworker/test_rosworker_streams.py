@@ -1,7 +1,8 @@
-"""rosworker/subscriptions/registry.py: the cyclic-subscription registry and the frames its ticks publish.
+"""The cyclic-subscription registry (rosworker/subscriptions/registry.py) and the frames the data family's
+ticks publish for it (rosworker/data/ticks.py, the ``data`` sampler of the core's samplers).
 
 In-process: a real ROS thread (``RosExecutor``'s loop, its timers), the real
-graph monitor over a fake node, the real events socket read by a real SUB
+graph monitor over a fake node, the real events channel (``core/events.py``) read by a real SUB
 socket; the pool is a stand-in that says what a read of each topic answers and
 counts what it is asked.  Through a real gateway and real publishers:
 tests/app/test_app_streams.py, tests/app/test_app_subscription_expiry.py,
@@ -13,6 +14,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from types import SimpleNamespace
 
 import pytest
 import zmq
@@ -20,7 +22,10 @@ import zmq
 from app.errors import ApiError
 from ipc import events, protocol
 from ipc.errors import IpcError
+from rosworker.core.events import EventsChannel
 from rosworker.core.graph import GraphMonitor
+from rosworker.core.samplers import SamplerRegistry
+from rosworker.data.ticks import TopicTicks
 from rosworker.subscriptions.registry import StreamRegistry
 from tests.support.procs import poll_until
 from tests.support.rosunit import FakeNode, RosThread
@@ -71,17 +76,32 @@ class FakePool:
         return self._meta(topic, "timeout", TYPE, 1)
 
 
+def registry_of(ros: RosThread, pool, graph, save=None, sample_timeout: float = 0.3, here: bool = False,
+                **limits):
+    """The events channel, the ``data`` sampler over ``pool`` and the registry, as the core and the data
+    and subscriptions families make them (on the ROS thread: the ticks set their timers; ``here``: on
+    this thread, the ROS thread's loop not running)."""
+    def make():
+        events_ = EventsChannel(ros.zctx, ros.runtime_dir, ros.executor, ros.stats)
+        samplers = SamplerRegistry()
+        ticks = TopicTicks(SimpleNamespace(executor=ros.executor, events=events_, graph=graph, stats=ros.stats),
+                           pool, sample_timeout)
+        samplers.register("data", ticks)
+        options = {"max_subscriptions": 100, "max_per_client": None, "max_duration": 3600, **limits}
+        return events_, ticks, StreamRegistry(ros.executor, events_, samplers, ros.stats, save=save, **options)
+    return make() if here else ros.call(make)
+
+
 class Setup:
-    """The registry as rosworker/main.py builds it, bound, with a SUB socket on its events."""
+    """The registry as the families build it, its channel bound, with a SUB socket on its events."""
 
     def __init__(self, ros: RosThread, **limits):
         self.ros = ros
         self.node = FakeNode()
         self.pool = FakePool()
         self.stats = ros.stats
-        self.graph = GraphMonitor(self.node, self.pool, self.stats)
-        options = {"max_subscriptions": 100, "max_per_client": None, "max_duration": 3600,
-                   "sample_timeout": 0.3, **limits}
+        self.graph = GraphMonitor(self.node, self.stats)
+        self.graph.on_change(self.pool.check_graph)
         self.changes = 0
 
         def changed(then=None) -> None:  # the restart state's writer, written at once
@@ -89,10 +109,9 @@ class Setup:
             if then is not None:
                 then()
 
-        self.registry = StreamRegistry(ros.zctx, ros.runtime_dir, ros.executor, self.pool, self.stats,
-                                       graph=self.graph, save=changed, **options)
+        self.events, self.ticks, self.registry = registry_of(ros, self.pool, self.graph, save=changed, **limits)
         ros.call(self.graph.tick)
-        ros.call(self.registry.bind)
+        ros.call(self.events.bind)
         self.sub = ros.zctx.socket(zmq.SUB)
         self.sub.setsockopt(zmq.LINGER, 0)
         self.sub.setsockopt(zmq.SUBSCRIBE, b"")
@@ -127,7 +146,7 @@ class Setup:
 
     def close(self) -> None:
         self.sub.close()
-        self.ros.call(self.registry.close)
+        self.ros.call(self.events.close)
 
 
 @pytest.fixture
@@ -177,7 +196,7 @@ def test_create_get_list_update_delete(streams):
     assert event["event"] == "updated" and event["key"] == updated["key"] and event["interval"] == "normal"
     assert 9 < event["expires_in"] <= 10
     assert s.registry.version > version and s.changes == 3
-    assert (TOPIC, "array") in s.registry.watches["normal"] and not s.registry.watches["fast"]
+    assert (TOPIC, "array") in s.ticks.watches["normal"] and not s.ticks.watches["fast"]
     assert json.loads(s.ros.call(s.registry.records)[0])["interval"] == "normal"  # the restart record too
 
     s.ros.call(s.registry.delete, "apps", "temp_sensor", a["id"])
@@ -186,7 +205,7 @@ def test_create_get_list_update_delete(streams):
         s.ros.call(s.registry.delete, "apps", "temp_sensor", a["id"])
     assert [x["id"] for x in s.ros.call(s.registry.listing, "apps", "temp_sensor")] == [b["id"]]
     assert (s.stats.active_subscriptions, s.changes) == (1, 4)
-    assert not s.registry.watches["normal"]
+    assert not s.ticks.watches["normal"]
 
 
 def test_the_caps_in_all_and_per_client(capped):
@@ -235,8 +254,7 @@ def test_the_saved_registry_is_restored_by_the_next_worker_without_what_expired(
     (tmp_path / "next").mkdir()
     other = RosThread(tmp_path / "next")  # its loop is not started: restore() runs on this thread
     try:
-        restored = StreamRegistry(other.zctx, other.runtime_dir, other.executor, FakePool(), other.stats,
-                                  max_subscriptions=100, max_duration=3600, sample_timeout=0.3)
+        _, _, restored = registry_of(other, FakePool(), GraphMonitor(FakeNode(), other.stats), here=True)
         restored.restore([*saved, gone, *junk])
         assert sorted(restored.subs) == sorted([a["id"], b["id"]])
         wire = restored.subs[a["id"]].wire()
@@ -283,7 +301,7 @@ def test_each_subscription_is_confirmed_and_what_is_sent_after_the_confirmation_
             assert sub.poll(5000), "no confirmation of the subscription"
             assert sub.recv_multipart() == [key]  # one frame: the subscribed prefix
         # Sent once, right after the confirmation: every confirmed subscriber has it.
-        streams.ros.call(streams.registry.send, [key, protocol.pack({"seq": 1}), b"{}"])
+        streams.ros.call(streams.events.send, [key, protocol.pack({"seq": 1}), b"{}"])
         for sub in subs:
             frames = None
             while sub.poll(5000):
@@ -338,5 +356,5 @@ def test_the_heartbeat_and_the_shutdown_event(streams):
     s = streams
     beat = protocol.unpack(s.next(events.HEARTBEAT_KEY)[1])
     assert beat["pid"] == os.getpid() and isinstance(beat["t"], int)
-    s.ros.call(s.registry.close)
+    s.ros.call(s.events.close)
     assert protocol.unpack(s.next(events.CONTROL_KEY + b"shutdown")[1]) == {"event": "shutdown"}

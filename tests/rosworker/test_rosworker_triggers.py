@@ -1,4 +1,4 @@
-"""The trigger conditions and JSON Pointers, value by value (rosworker/triggers/registry.py, ipc/jsonpointer.py).
+"""The trigger conditions and JSON Pointers, value by value (rosworker/triggers/conditions.py, ipc/jsonpointer.py).
 
 What they do on real messages through a real gateway is tests/app/test_app_trigger_streams.py.
 """
@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from ipc import jsonpointer
 from ipc.errors import IpcError
-from rosworker.triggers.registry import check_condition, fires, in_range, same
+from rosworker.triggers.conditions import check_condition, fires, in_range, same
 
 MISSING = jsonpointer.MISSING
 NAN = "NaN"  # how a message's NaN reads in its JSON (rosworker/ros/encode.py)
@@ -120,3 +120,29 @@ def test_every_condition_answers_a_boolean_for_any_values(previous, current, low
             "upper_bound": max(low, high)}
     assert fires(cond, previous, current) in (True, False)
     assert fires(cond, MISSING, current) in (True, False)
+
+
+def test_a_trigger_observes_a_change_through_its_path_and_fires_with_the_payload_in_its_mode():
+    from rosworker.triggers.registry import Trigger
+    from rosworker.triggers.sources import TriggerObserver
+
+    trigger = Trigger(id="trig_0000000000000001", collection="apps", entity_id="a", resource="/r", source="data",
+                      target="/t", bytes="base64", path="/level", condition={"condition_type": "OnChange"},
+                      multishot=True, persistent=False, lifetime=None, created_at_ns=0, client="", status="active")
+    fired: list = []
+    observer = TriggerObserver(trigger, lambda t, stamp, **kw: fired.append((t.id, stamp, kw)))
+    asked: list[str] = []
+
+    def payload(mode: str) -> bytes:
+        asked.append(mode)
+        return b"text in " + mode.encode()
+
+    assert (observer.target, observer.bytes) == ("/t", "base64")
+    observer.changed(1, {"level": 3}, payload)
+    observer.changed(2, {"level": 3}, payload)        # no change: no event, no payload made
+    observer.changed(3, {"other": 1}, payload)        # no value at the path: not evaluated
+    observer.changed(4, {"level": 4}, payload)
+    observer.failed(5, "cannot be decoded")
+    assert fired == [(trigger.id, 1, {"payload": b"text in base64"}), (trigger.id, 4, {"payload": b"text in base64"}),
+                     (trigger.id, 5, {"error": "cannot be decoded"})]
+    assert asked == ["base64", "base64"]
