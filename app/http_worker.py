@@ -75,7 +75,7 @@ def stopping() -> threading.Event:
 
 
 class BodyTimeout(RequestTimeout):
-    """The request body did not arrive within ``body_timeout``: a JSON 408 (``app/errors.py``)."""
+    """The request body did not arrive within ``body_timeout``: a JSON 408 (``app/core/errors.py``)."""
 
 
 class HttpWorker(GeventWorker):

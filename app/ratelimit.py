@@ -6,7 +6,7 @@ holds at most BURST tokens, gains RATE per second, and each request takes
 one.  Both are off by default.  A request is let through only when both its
 client's bucket and the global one hold a token; a refused request takes
 nothing (so a client over its own limit does not drain the global bucket).
-The client is the real one behind nginx (``app/clientaddr.py``).  An event
+The client is the real one behind nginx (``app/core/clientaddr.py``).  An event
 stream is one request, counted when it opens.  ``/api/v1/health`` and
 ``/metrics`` are never limited, so monitoring cannot be locked out; nor
 are CORS preflights, which a browser sends before the request that counts
@@ -60,8 +60,8 @@ from flask import Flask, Response, current_app, request
 from common import runfiles, settings
 from common.process import PerProcess
 
-from . import metrics
-from .errors import ApiError, error_response
+from .core import metrics
+from .core.errors import ApiError, error_response
 
 log = logging.getLogger("sovd.http.ratelimit")
 

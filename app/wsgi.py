@@ -2,7 +2,7 @@
 
 Nothing happens at import time.  ``create_app`` runs in each HTTP worker
 after gunicorn forked it; the ROS-worker client it sets up opens its ZeroMQ
-context only on first use (``app/rosclient.py``).  Settings come from
+context only on first use (``app/core/rosclient.py``).  Settings come from
 ``common.settings.load()``: the supervisor hands them to gunicorn's workers as
 ``SOVD_*`` environment variables.
 
@@ -19,7 +19,9 @@ from flask import Flask
 
 from common import settings
 
-from . import clientaddr, cors, errors, metrics, ratelimit, requestid, rosclient, streams
+from . import ratelimit
+from .core import clientaddr, cors, errors, metrics, requestid, rosclient
+from .subscriptions import hub as streams
 
 
 def create_app(test_config: dict[str, Any] | None = None) -> Flask:
@@ -34,7 +36,9 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
     app.config["SOVD"] = cfg
     app.config["MAX_CONTENT_LENGTH"] = cfg.max_body_bytes
 
-    from .routes import common, data, discovery, root, subscriptions, ui, unimplemented
+    from .core import common, discovery, root, ui, unimplemented
+    from .data import routes as data
+    from .subscriptions import routes as subscriptions
 
     # `data//a/b` must reach the data route as `/a/b`, not be redirected to `data/a/b`.
     app.url_map.merge_slashes = False
@@ -55,29 +59,29 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
     app.register_blueprint(discovery.bp)
     app.register_blueprint(data.bp)
     app.register_blueprint(subscriptions.bp)
-    from .routes import faults  # faults: /diagnostics as SOVD faults
+    from .faults import routes as faults  # faults: /diagnostics as SOVD faults
 
     app.register_blueprint(faults.bp)
-    from .routes import status  # GET .../status: ready or notReady (lifecycle)
+    from .operations import status  # GET .../status: ready or notReady (lifecycle)
 
     app.register_blueprint(status.bp)
     app.register_blueprint(unimplemented.bp)  # medkit's routes not served here: 501
     app.register_blueprint(ui.bp)  # the dashboard at /ui/ (app/ui/)
-    from .routes import operations  # operations: services and actions
+    from .operations import routes as operations  # operations: services and actions
     app.register_blueprint(operations.bp)
-    # configurations: the nodes' ROS 2 parameters (app/routes/configurations.py)
-    from .routes import configurations
+    # configurations: the nodes' ROS 2 parameters (app/configurations/routes.py)
+    from .configurations import routes as configurations
     app.register_blueprint(configurations.bp)
-    from .routes import logs  # logs (issue 22)
+    from .logs import routes as logs  # logs (issue 22)
     app.register_blueprint(logs.bp)
-    # Triggers (app/routes/triggers.py, their streams app/triggerstreams.py).
-    from . import triggerstreams
-    from .routes import triggers
+    # Triggers (app/triggers/routes.py, their streams app/triggers/hub.py).
+    from .triggers import hub as triggerstreams
+    from .triggers import routes as triggers
 
     triggerstreams.init_app(app)
     app.register_blueprint(triggers.bp)
     if cfg.debug_commands:  # test and bench routes; never in production
-        from .routes import debug
+        from .core import debug
 
         debug.init_app(app)
     return app

@@ -65,7 +65,7 @@ from typing import Any
 import psutil
 import requests
 
-from app.routes.debug import echo_endpoint
+from app.core.debug import echo_endpoint
 from ipc.client import RosWorkerClient
 from tests.support.gateway import Gateway
 from tests.support.procs import Proc, poll_until, private_ros_domain

@@ -31,7 +31,7 @@ ENV_PREFIX = "SOVD_"
 # (absent at the first boot).  A restarted worker waits a while for the runtime dir's lock
 # (its predecessor may still be dying).
 RESTART_ENV = "SOVD_WORKER_RESTART"
-ACCESS_LOG_RATE = 100.0     # access lines per second, all HTTP workers together (app/accesslog.py)
+ACCESS_LOG_RATE = 100.0     # access lines per second, all HTTP workers together (app/core/accesslog.py)
 ACCESS_LOG_BURST = 1000     # access lines at once before the rate applies
 RATE_MAX = 1_000_000.0      # bounds of a RATE/BURST setting
 BURST_MAX = 1_000_000
@@ -342,7 +342,7 @@ class Rate:
     """A token bucket: ``rate`` tokens per second, at most ``burst`` at once.
 
     The one refill rule of the gateway's buckets: the rate limiter's (``app/ratelimit.py``)
-    and the access log's (``app/accesslog.py``).
+    and the access log's (``app/core/accesslog.py``).
     """
 
     rate: float

@@ -19,7 +19,7 @@ streams watch them.  The wire format is documented in ``ipc/PROTOCOL.md``.
   subscription an HTTP worker makes (the XPUB is verbose: the ROS thread reads
   each one).  The XPUB applied the subscription before handing it over, so
   whoever receives the confirmation receives everything of that prefix sent
-  after it: an event stream opens only then (``app/channel.py``).  A reader
+  after it: an event stream opens only then (``app/sse/channel.py``).  A reader
   passes over one-frame messages it does not wait for.
 """
 

@@ -27,7 +27,7 @@ The queries' rules are medkit's (``log_manager.cpp``): a node matches by its
 logger name in slash or dot form; the stricter of the query's severity and
 the entity's ``severity_filter`` applies; ``context`` is a substring of the
 logger name; entries come oldest first, the newest ``max_entries``.  Rows go
-to the HTTP side as lists (``ROW``); it formats them (``app/routes/logs.py``).
+to the HTTP side as lists (``ROW``); it formats them (``app/logs/routes.py``).
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ import uuid
 
 import pytest
 
-from app import accesslog
+from app.core import accesslog
 from common import settings
 from tests.support.gateway import Gateway
 from tests.support.procs import poll_until
@@ -60,7 +60,7 @@ def test_the_access_log_is_off_unless_asked_for(monkeypatch):
         monkeypatch.setenv("SOVD_ACCESS_LOG", "1")
         reloaded = importlib.reload(conf)
         assert reloaded.accesslog == "-"
-        assert reloaded.logger_class == "app.accesslog.AccessLogger"
+        assert reloaded.logger_class == "app.core.accesslog.AccessLogger"
         assert "%({x-request-id}o)s" in reloaded.access_log_format
     finally:
         monkeypatch.delenv("SOVD_ACCESS_LOG", raising=False)

@@ -1,4 +1,4 @@
-"""app/routes/bodies.py: which Content-Types a JSON body may be declared with (the app, a fake ROS worker).
+"""app/core/bodies.py: which Content-Types a JSON body may be declared with (the app, a fake ROS worker).
 
 Through a real gateway and raw sockets (malformed chunked bodies, the limit,
 415): tests/reliability/test_hostile_http.py; from a page of another origin in

@@ -1,4 +1,4 @@
-"""app/channel.py: an event stream waits for the ROS worker's confirmation of its subscription.
+"""app/sse/channel.py: an event stream waits for the ROS worker's confirmation of its subscription.
 
 The confirmations on their own (greenlets, no socket), then through a real
 ZeroMQ events socket confirmed as the ROS worker does: an event sent right
@@ -13,7 +13,7 @@ import gevent
 import zmq as plain_zmq
 import zmq.green as zmq
 
-from app import channel
+from app.sse import channel
 from ipc import events
 from ipc.server import bind_publisher
 

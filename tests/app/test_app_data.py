@@ -1,4 +1,4 @@
-"""GET {entity}/data and {entity}/data/{data_id} (app/routes/data.py) against a fake ROS worker."""
+"""GET {entity}/data and {entity}/data/{data_id} (app/data/routes.py) against a fake ROS worker."""
 
 from __future__ import annotations
 

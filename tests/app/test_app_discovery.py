@@ -1,4 +1,4 @@
-"""app/routes/discovery.py (and the graph cache of app/rosclient.py) against a fake ROS worker."""
+"""app/core/discovery.py (and the graph cache of app/core/rosclient.py) against a fake ROS worker."""
 
 from __future__ import annotations
 

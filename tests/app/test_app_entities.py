@@ -1,11 +1,11 @@
-"""app/entities.py: the ROS graph → SOVD entities, as pure functions."""
+"""app/core/entities.py: the ROS graph → SOVD entities, as pure functions."""
 
 from __future__ import annotations
 
 import pytest
 
-from app import entities
-from app.entities import HostInfo, build, data_items, host_component_id
+from app.core import entities
+from app.core.entities import HostInfo, build, data_items, host_component_id
 from tests.support.fakeworker import node, topics_of
 
 HOST = HostInfo("My-Robot.local", "Debian GNU/Linux 12 (bookworm)", "x86_64")

@@ -1,8 +1,8 @@
-"""app/errors.py's answer to each IPC error code, against the wire's code table (ipc/errors.py)."""
+"""app/core/errors.py's answer to each IPC error code, against the wire's code table (ipc/errors.py)."""
 
 from __future__ import annotations
 
-from app.errors import IPC_ANSWERS, ApiError
+from app.core.errors import IPC_ANSWERS, ApiError
 from ipc.errors import CODES, IpcError
 
 

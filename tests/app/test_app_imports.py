@@ -7,9 +7,9 @@ import sys
 
 from tests.support.procs import REPO
 
-HTTP_MODULES = ("app.wsgi", "app.errors", "app.rosclient", "app.entities", "app.openapi",
-                "app.routes.common", "app.routes.root", "app.routes.discovery", "app.routes.data",
-                "app.routes.data_checks", "app.routes.auth", "ipc.client", "ipc.errors", "ipc.topics")
+HTTP_MODULES = ("app.wsgi", "app.core.errors", "app.core.rosclient", "app.core.entities", "app.openapi",
+                "app.core.common", "app.core.root", "app.core.discovery", "app.data.routes",
+                "app.data.checks", "app.core.auth", "ipc.client", "ipc.errors", "ipc.topics")
 
 
 def run(code: str) -> subprocess.CompletedProcess:
@@ -30,7 +30,7 @@ def test_http_side_does_not_import_rclpy():
 
 def test_import_makes_no_zmq_context_and_no_app():
     code = ("import zmq, gc\n"
-            "import app.wsgi, app.routes.data, app.rosclient\n"
+            "import app.wsgi, app.data.routes, app.core.rosclient\n"
             "assert not [o for o in gc.get_objects() if isinstance(o, zmq.Context)]\n"
             "import flask\n"
             "assert not [o for o in gc.get_objects() if isinstance(o, flask.Flask)]\n")

@@ -9,7 +9,8 @@ from __future__ import annotations
 import gc
 import weakref
 
-from app import rosclient, streams
+from app.core import rosclient
+from app.subscriptions import hub as streams
 from tests.support.fakeworker import make_app
 
 

@@ -14,7 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from prometheus_client.parser import text_string_to_metric_families
 
-from app import metrics
+from app.core import metrics
 from tests.support.fakeworker import ROBOT, FakeWorker, data_sample, make_app
 
 TOPIC = "/powertrain/engine/temperature"

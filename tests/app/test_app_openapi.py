@@ -11,9 +11,10 @@ import re
 import jsonschema
 import pytest
 
-from app import faultstream, openapi
-from app.entities import RELATIONS
-from app.routes import unimplemented
+from app import openapi
+from app.core import unimplemented
+from app.core.entities import RELATIONS
+from app.faults import hub as faultstream
 from ipc.errors import IpcError
 from tests.support.fakeworker import ROBOT, FakeWorker, data_sample, make_app
 
@@ -226,7 +227,7 @@ def test_every_route_answers_per_the_document(doc):
                 r = client.open(path, method=method, **kw)
                 check(doc, method, path, r)
                 seen.setdefault(operation(doc, method, path)[0], set()).add(r.status_code)
-        # logs (issue 22): app/routes/logs.py
+        # logs (issue 22): app/logs/routes.py
         for collection in ("apps", "components", "functions"):
             base = f"/api/v1/{collection}/{ENTITY[collection]}/logs"
             for method, path, kw in [
@@ -241,7 +242,7 @@ def test_every_route_answers_per_the_document(doc):
                 r = client.open(path, method=method, **kw)
                 check(doc, method, path, r)
                 seen.setdefault(operation(doc, method, path)[0], set()).add(r.status_code)
-        # faults (issue 22): app/routes/faults.py, over the ROS worker's answers (rosworker/faults/manager.py::public)
+        # faults (issue 22): app/faults/routes.py, over the ROS worker's answers (rosworker/faults/manager.py::public)
         fault = {"fault_code": "TEMP_SENSOR_HOT", "severity": 2, "severity_label": "ERROR", "description": "hot",
                  "first_occurred": 1700000000.5, "last_occurred": 1700000001.5, "occurrence_count": 1,
                  "status": "CONFIRMED", "reporting_sources": ["/powertrain/engine/temp_sensor"]}
@@ -326,7 +327,7 @@ def test_every_route_answers_per_the_document(doc):
             headers=auth)
         assert r.status_code == 503 and r.headers["Retry-After"] == "5"
         check(doc, "POST", "/api/v1/apps/temp_sensor/triggers", r)
-        # medkit's routes not served here: 501 whatever the ids (app/routes/unimplemented.py).
+        # medkit's routes not served here: 501 whatever the ids (app/core/unimplemented.py).
         for route, path, _ in unimplemented.paths():
             concrete = "/api/v1" + re.sub(r"\{[^}]+\}", "x1", path)
             r = client.open(concrete, method=route.method)
@@ -427,7 +428,7 @@ def test_every_route_answers_per_the_document(doc):
 
 
 def test_every_operation_with_a_json_body_documents_the_body_errors(doc):
-    """415 (not declared JSON), 413 (too large) and 408 (too slow): app/routes/bodies.py, on every body."""
+    """415 (not declared JSON), 413 (too large) and 408 (too slow): app/core/bodies.py, on every body."""
     with_body = [(method, path, op) for path, ops in doc["paths"].items() for method, op in ops.items()
                  if "requestBody" in op]
     # PUT data of 4 collections; POST and PUT cyclic-subscriptions of 3; POST and PUT executions of 3;

@@ -12,7 +12,7 @@ import os
 import pytest
 
 from app import openapi, ratelimit
-from app.clientaddr import Trusted, client_address
+from app.core.clientaddr import Trusted, client_address
 from common import settings
 from tests.app.test_app_openapi import check
 from tests.support.fakeworker import make_app

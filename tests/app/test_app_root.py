@@ -1,4 +1,4 @@
-"""Root overview, version-info, health, docs, and the JSON error handlers (app/errors.py)."""
+"""Root overview, version-info, health, docs, and the JSON error handlers (app/core/errors.py)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import time
 import pytest
 
 from app import openapi
-from app.routes import unimplemented
+from app.core import unimplemented
 from tests.support.fakeworker import STATS, data_sample, make_app
 
 
@@ -39,7 +39,7 @@ def test_root(client):
 
 
 def test_root_says_what_is_not_served(client):
-    """The capabilities say what answers 501 (app/routes/unimplemented.py) and what is not there yet."""
+    """The capabilities say what answers 501 (app/core/unimplemented.py) and what is not there yet."""
     body = client.get("/api/v1/").get_json()
     caps = body["capabilities"]
     for name in ("bulk_data", "locking", "scripts", "lifecycle", "updates"):
@@ -170,7 +170,7 @@ def test_entity_docs_fill_in_the_entity(client):
         "/components/test-robot/cyclic-subscriptions/{subscription_id}",
         "/components/test-robot/cyclic-subscriptions/{subscription_id}/events",
         "/components/test-robot/docs", "/components/test-robot/data/docs",
-        # configurations: app/routes/configurations.py
+        # configurations: app/configurations/routes.py
         "/components/test-robot/configurations", "/components/test-robot/configurations/{config_id}",
         "/components/test-robot/triggers", "/components/test-robot/triggers/{trigger_id}",
         "/components/test-robot/triggers/{trigger_id}/events",

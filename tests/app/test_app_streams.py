@@ -22,7 +22,13 @@ import psutil
 import pytest
 import requests
 
-from app.streams import SILENT_CHECK, STREAM_BUFFER_BYTES, STREAM_SNDBUF, Stream, StreamHub
+from app.subscriptions.hub import (
+    SILENT_CHECK,
+    STREAM_BUFFER_BYTES,
+    STREAM_SNDBUF,
+    Stream,
+    StreamHub,
+)
 from ipc.errors import IpcError
 from tests.support.gateway import Gateway
 from tests.support.metrics import families, value

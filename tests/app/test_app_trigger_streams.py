@@ -89,7 +89,7 @@ def test_on_change_fires_on_the_first_value_and_each_change_and_two_nan_are_no_c
     trig = topic.create({"condition_type": "OnChange"}, multishot=True, lifetime=60)
     confirmed = stats(gw)["subscriptions_confirmed"]
     with topic.stream(trig) as stream:
-        # The head came once the ROS worker had the stream's subscription (app/channel.py).
+        # The head came once the ROS worker had the stream's subscription (app/sse/channel.py).
         assert stats(gw)["subscriptions_confirmed"] > confirmed
         for value in (1.0, 1.0, 2.0, float("nan"), float("nan"), float("inf"), float("inf"), 3.0):
             topic.pub.send({"data": value})

@@ -1,4 +1,4 @@
-"""The dashboard's routes (app/routes/ui.py) and its static files (app/ui/), without a browser.
+"""The dashboard's routes (app/core/ui.py) and its static files (app/ui/), without a browser.
 
 What a browser makes of the page is tests/system/test_ui.py; here: the redirect, the
 security headers, the JSON 404s, that the API's routes are untouched, that the
@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from app.routes.ui import SECURITY_HEADERS, UI_DIR
+from app.core.ui import SECURITY_HEADERS, UI_DIR
 from tests.support.fakeworker import make_app
 from tests.support.procs import REPO
 

@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 import requests
 
-from app.entities import host_component_id
+from app.core.entities import host_component_id
 from tests.support.gateway import Gateway
 from tests.support.procs import poll_until, publisher
 

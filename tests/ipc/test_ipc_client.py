@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from app.errors import ApiError
+from app.core.errors import ApiError
 from ipc import protocol
 from ipc.client import POOL_SIZE, RosWorkerClient
 from ipc.errors import IpcError

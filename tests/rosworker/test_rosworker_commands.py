@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 from rclpy.validate_full_topic_name import validate_full_topic_name
 
-from app.errors import ApiError
+from app.core.errors import ApiError
 from ipc.errors import IpcError
 from rosworker.data.commands import middleware_names
 from tests.support.rosworker import RosWorker

@@ -20,7 +20,7 @@ import threading
 import pytest
 import zmq
 
-from app.errors import ApiError
+from app.core.errors import ApiError
 from ipc.client import RosWorkerClient
 from ipc.errors import IpcError
 from ipc.server import ControlServer

@@ -10,7 +10,7 @@ import msgpack
 import pytest
 import zmq
 
-from app.errors import ApiError
+from app.core.errors import ApiError
 from ipc import protocol
 from ipc.errors import IpcError
 from tests.support.gateway import Gateway

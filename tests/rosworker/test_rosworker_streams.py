@@ -19,7 +19,7 @@ from types import SimpleNamespace
 import pytest
 import zmq
 
-from app.errors import ApiError
+from app.core.errors import ApiError
 from ipc import events, protocol
 from ipc.errors import IpcError
 from rosworker.core.events import EventsChannel

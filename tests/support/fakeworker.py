@@ -135,7 +135,7 @@ class FakeWorker:
             self._thread.join(timeout=5)
 
     def close(self) -> None:
-        from app import rosclient
+        from app.core import rosclient
 
         for app in self.apps:
             app.extensions[rosclient.EXTENSION].close()

@@ -17,8 +17,8 @@ import psutil
 import pytest
 import requests
 
-from app.entities import PARAM_NAMES, host_component_id
-from app.routes import unimplemented
+from app.core import unimplemented
+from app.core.entities import PARAM_NAMES, host_component_id
 from tests.support import floats
 from tests.support.gateway import Gateway
 from tests.support.procs import RosNode, poll_until, publisher

@@ -1,6 +1,6 @@
 """SOVD configurations through the real gateway and real nodes with parameters (tests/support/paramnode.py).
 
-Every route and answer of ``app/routes/configurations.py`` with the ROS worker's
+Every route and answer of ``app/configurations/routes.py`` with the ROS worker's
 parameter clients (``rosworker/configurations/clients.py``) against rclpy nodes in other
 processes: every parameter type round-tripped, the nodes' own reasons, a node
 whose services never answer, a node that leaves, reset and multi-node ids.

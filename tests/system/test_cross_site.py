@@ -3,7 +3,7 @@
 A browser sends a page's "simple" cross-origin request (a POST declared
 ``text/plain``, a form) without asking the server first: no CORS preflight,
 so the gateway's CORS settings are never consulted.  The gateway refuses every
-JSON body not declared ``application/json`` (415, ``app/routes/bodies.py``), and
+JSON body not declared ``application/json`` (415, ``app/core/bodies.py``), and
 a request declared ``application/json`` or using PUT always takes a preflight,
 which a gateway without ``cors_origins`` refuses.
 

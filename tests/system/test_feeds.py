@@ -3,7 +3,7 @@
 A real action server (``tests/support/rosops.py``) and a real parameter node
 (``tests/support/paramnode.py``) in their own processes; the gateway's ROS
 worker streams the goal's status and feedback and the parameter's value
-(``rosworker/configurations/feed.py``), its HTTP workers frame them (``app/feeds.py``).
+(``rosworker/configurations/feed.py``), its HTTP workers frame them (``app/subscriptions/feeds.py``).
 """
 
 from __future__ import annotations

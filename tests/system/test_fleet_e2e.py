@@ -148,7 +148,7 @@ def test_an_event_stream_shows_in_the_metrics_and_carries_the_cors_headers(gw):
         for _ in range(3):
             assert "payload" in stream.next(timeout=10)
         assert value(scrape(gw), "sovd_http_streams_open") == 1
-        # The hub adds its frame counts to the metrics once per ticker round (app/streams.py).
+        # The hub adds its frame counts to the metrics once per ticker round (app/subscriptions/hub.py).
         poll_until(lambda: value(scrape(gw), "sovd_http_stream_frames_sent", "sovd_http_stream_frames_sent_total")
                    - sent_before >= 3, 5, message="the three frames counted in the metrics")
     poll_until(lambda: value(scrape(gw), "sovd_http_streams_open") == 0, 10, message="the stream closed")

@@ -1,0 +1,275 @@
+"""``/faults``: the robot's ``/diagnostics`` as SOVD faults (medkit's fault handlers).
+
+The ROS worker keeps the faults (``rosworker/faults/manager.py``, stored in SQLite);
+these routes ask it for them and apply medkit's rules here:
+
+- ``?status=`` as medkit's transport asks its fault manager
+  (``ros2_fault_service_transport.cpp``, ``parse_fault_status_param``):
+  ``pending`` is PREFAILED, ``confirmed`` CONFIRMED, ``healed`` HEALED and
+  PREPASSED, ``cleared`` CLEARED with what ``healed`` holds (SOVD's "cleared"),
+  ``all`` every status; without it pending and confirmed (PREFAILED,
+  CONFIRMED); anything else is 400 ``invalid-parameter``.
+- Entity scope (medkit's all-sources rule, ``fault_scope.cpp``): a fault belongs
+  to an app, component or function when *every* one of its reporting sources is
+  one of the entity's nodes (or below one: ``/a/b`` is below ``/a``).  A fault
+  out of scope is "not found" there.
+- Clearing (DELETE) is a write: ``allow_fault_clear`` and the bearer token.
+- ``GET /api/v1/faults/stream``: Server-Sent Events (``app/faults/hub.py``).
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+from flask import Blueprint, current_app, request
+
+from ipc.errors import IpcError
+
+from ..core import rosclient
+from ..core.auth import authorize_change
+from ..core.common import config, json_response, lookup
+from ..core.entities import API_BASE, PARAM_NAMES, Entity
+from ..core.errors import ApiError
+from ..subscriptions.hub import rfc3339
+from . import hub as faultstream
+
+bp = Blueprint("faults", __name__, url_prefix=API_BASE)
+
+ENTITY = "/<collection:collection>/<entity_id>"
+CODE_MAX = 256
+STATUS_FILTERS = {
+    "pending": ("PREFAILED",),
+    "confirmed": ("CONFIRMED",),
+    "cleared": ("CLEARED", "HEALED", "PREPASSED"),
+    "healed": ("HEALED", "PREPASSED"),
+    "all": ("PREFAILED", "CONFIRMED", "CLEARED", "HEALED", "PREPASSED"),
+}
+DEFAULT_STATUSES = ("PREFAILED", "CONFIRMED")  # medkit's include_pending and include_confirmed
+OUT_OF_SCOPE = ("Fault is not in scope for this entity: every reporting source must be one of the entity's "
+                "owned apps, and a mixed-source fault that includes any out-of-entity reporter is rejected "
+                "to prevent cross-entity disclosure")
+# medkit's extract_primary_value: the field a snapshot's ``data`` shows for these types
+PRIMARY_FIELDS = {
+    "std_msgs/msg/Float64": "data", "std_msgs/msg/Float32": "data", "std_msgs/msg/Int32": "data",
+    "std_msgs/msg/Int64": "data", "std_msgs/msg/Bool": "data", "std_msgs/msg/String": "data",
+    "sensor_msgs/msg/Temperature": "temperature", "sensor_msgs/msg/BatteryState": "percentage",
+    "sensor_msgs/msg/FluidPressure": "fluid_pressure", "sensor_msgs/msg/Range": "range",
+    "geometry_msgs/msg/Twist": "linear", "nav_msgs/msg/Odometry": "pose",
+}
+
+
+# ---- helpers ----------------------------------------------------------------------------------------
+def _statuses(extra: dict[str, Any] | None = None) -> tuple[str, ...]:
+    if "status" not in request.args:
+        return DEFAULT_STATUSES
+    value = request.args.get("status", "")
+    if value not in STATUS_FILTERS:
+        raise ApiError(400, "invalid-parameter", "Invalid status parameter value",
+                       {"allowed_values": "pending, confirmed, cleared, healed, all", "parameter": "status",
+                        "value": value[:300], **(extra or {})})
+    return STATUS_FILTERS[value]
+
+
+def _call(cmd: str, args: dict[str, Any], params: dict[str, Any] | None = None) -> dict[str, Any]:
+    try:
+        return rosclient.get().call(cmd, args, config().ipc_timeout)
+    except IpcError as exc:
+        raise ApiError.from_ipc(exc, params) from None
+
+
+def _list(statuses: tuple[str, ...]) -> list[dict[str, Any]]:
+    return _call("fault_list", {"statuses": list(statuses)}).get("items") or []
+
+
+def _fqns(entity: Entity) -> list[str]:
+    """The node names whose faults belong to ``entity`` (its app's, or those of the apps it hosts)."""
+    if entity.collection == "apps":
+        return [entity.x_medkit.get("ros2", {}).get("node", "")]
+    index = rosclient.get().entities()
+    out = []
+    for app_id in entity.app_ids:
+        app = index.get("apps", app_id)
+        if app is not None:
+            out.append(app.x_medkit.get("ros2", {}).get("node", ""))
+    return sorted({f for f in out if f})
+
+
+def in_scope(fault: dict[str, Any], fqns: list[str]) -> bool:
+    """medkit's ``fault_in_source_scope``: every reporting source is one of ``fqns`` or below one."""
+    sources = fault.get("reporting_sources")
+    if not fqns or not isinstance(sources, list) or not sources:
+        return False
+    return all(isinstance(s, str) and any(s == f or s.startswith(f.rstrip("/") + "/") for f in fqns)
+               for s in sources)
+
+
+def _check_code(code: str) -> None:
+    if not code or len(code) > CODE_MAX:
+        raise ApiError(400, "invalid-parameter", "Invalid fault code",
+                       {"details": f"Fault code must be between 1 and {CODE_MAX} characters"})
+
+
+def _authorize_clear() -> None:
+    if not config().allow_fault_clear:
+        raise ApiError(403, "forbidden", "Clearing faults is disabled on this gateway",
+                       {"details": "start the gateway with --allow-fault-clear to enable DELETE .../faults"})
+    authorize_change()
+
+
+def _scoped_fault(collection: str, entity: Entity, code: str) -> dict[str, Any]:
+    """``fault_get`` of ``code``, 404 when there is none or it is out of the entity's scope."""
+    params = {PARAM_NAMES[collection]: entity.id, "fault_code": code}
+    try:
+        answer = rosclient.get().call("fault_get", {"code": code}, config().ipc_timeout)
+    except IpcError as exc:
+        if exc.code == "no-such-fault":
+            raise ApiError(404, "resource-not-found", "Fault not found",
+                           {"details": f"Fault not found: {code}", **params}) from None
+        raise ApiError.from_ipc(exc, params) from None
+    if not in_scope(answer.get("fault") or {}, _fqns(entity)):
+        raise ApiError(404, "resource-not-found", "Fault not found", {"details": OUT_OF_SCOPE, **params})
+    return answer
+
+
+def _status_object(status: str) -> dict[str, str]:
+    """medkit's ``build_status_object``: the DTC status bits of a fault's status."""
+    aggregated, failed, confirmed, pending = "cleared", False, False, False
+    if status == "CONFIRMED":
+        aggregated, failed, confirmed = "active", True, True
+    elif status == "PREFAILED":
+        aggregated, failed, pending = "passive", True, True
+    elif status == "PREPASSED":
+        aggregated, pending = "passive", True
+    return {"aggregatedStatus": aggregated, "testFailed": "1" if failed else "0",
+            "confirmedDTC": "1" if confirmed else "0", "pendingDTC": "1" if pending else "0"}
+
+
+def _snapshot(frame: dict[str, Any]) -> dict[str, Any]:
+    topic, message_type = frame.get("topic", ""), frame.get("message_type", "")
+    out: dict[str, Any] = {"type": frame.get("type", "freeze_frame"), "name": frame.get("name", "")}
+    ext: dict[str, Any] = {"topic": topic, "message_type": message_type}
+    try:
+        full = json.loads(frame.get("data", ""))
+        field = PRIMARY_FIELDS.get(message_type)
+        out["data"] = full[field] if field and isinstance(full, dict) and field in full else full
+        ext.update(full_data=full, captured_at=rfc3339(int(frame.get("captured_at_ns", 0))).decode())
+    except (ValueError, TypeError) as exc:
+        out["data"] = frame.get("data", "")
+        ext["parse_error"] = str(exc)[:200]
+    if frame.get("truncated"):
+        ext["truncated_bytes"] = frame["truncated"]
+    if frame.get("error"):
+        ext["error"] = frame["error"]
+    out["x-medkit"] = ext
+    return out
+
+
+def detail(answer: dict[str, Any]) -> dict[str, Any]:
+    """medkit's ``build_sovd_fault_response``."""
+    fault = answer["fault"]
+    item: dict[str, Any] = {"code": fault["fault_code"]}
+    if fault.get("description"):
+        item["fault_name"] = fault["description"]
+    item["severity"] = fault["severity"]
+    item["status"] = _status_object(fault["status"])
+    ext: dict[str, Any] = {"occurrence_count": fault["occurrence_count"]}
+    if fault.get("reporting_sources"):
+        ext["reporting_sources"] = fault["reporting_sources"]
+    ext.update(severity_label=fault["severity_label"], status_raw=fault["status"])
+    return {"item": item,
+            "environment_data": {
+                "extended_data_records": {"first_occurrence": rfc3339(answer["first_ns"]).decode(),
+                                          "last_occurrence": rfc3339(answer["last_ns"]).decode()},
+                "snapshots": [_snapshot(s) for s in answer.get("snapshots") or [] if isinstance(s, dict)]},
+            "x-medkit": ext}
+
+
+def _no_content():
+    return current_app.response_class(status=204)
+
+
+# ---- the gateway's faults -------------------------------------------------------------------------------
+@bp.get("/faults")
+def list_all():
+    items = _list(_statuses())
+    return json_response({"items": items, "x-medkit": {"count": len(items), "muted_count": 0,
+                                                         "cluster_count": 0}})
+
+
+@bp.delete("/faults")
+def clear_all_global():
+    _authorize_clear()
+    statuses = _statuses()
+    codes = [f["fault_code"] for f in _list(statuses)]
+    if codes:
+        _call("fault_clear", {"codes": codes})
+    return _no_content()
+
+
+@bp.get("/faults/stream")
+def stream():
+    cfg = config()
+    hub = faultstream.hub(cfg.runtime_dir, cfg.stream_send_timeout)
+    if len(hub.streams) >= cfg.max_fault_streams:
+        raise ApiError(503, "service-unavailable", "Maximum number of SSE clients reached. Please try again later.",
+                       {"max_fault_streams": cfg.max_fault_streams}, headers={"Retry-After": "5"})
+    raw = request.headers.get("Last-Event-ID", "").strip()
+    last_id = int(raw) if raw.isdigit() and len(raw) <= 18 else 0
+    ros = rosclient.get()
+
+    def replay(after: int) -> list[dict[str, Any]]:
+        return ros.call("fault_events", {"after": after}, faultstream.REPLAY_TIMEOUT).get("events") or []
+
+    return current_app.response_class(
+        faultstream.FaultStream(hub, last_id).body(replay, request.environ.get("gunicorn.socket")), mimetype="text/event-stream",
+        headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+
+
+# ---- an entity's faults ---------------------------------------------------------------------------------
+@bp.get(ENTITY + "/faults")
+def list_entity(collection: str, entity_id: str):
+    entity = lookup(collection, entity_id)
+    statuses = _statuses({PARAM_NAMES[collection]: entity.id})
+    fqns = _fqns(entity)
+    items = [f for f in _list(statuses) if in_scope(f, fqns)]
+    if collection == "apps":
+        ext: dict[str, Any] = {"entity_id": entity.id, "source_id": fqns[0] if fqns else "",
+                               "count": len(items), "muted_count": 0, "cluster_count": 0}
+    else:
+        is_function = collection == "functions"
+        ext = {"entity_id": entity.id, "aggregation_level": "function" if is_function else "component",
+               "aggregated": True, ("host_count" if is_function else "app_count"): len(fqns)}
+        if fqns:
+            ext["aggregation_sources"] = fqns
+        ext["count"] = len(items)
+    return json_response({"items": items, "x-medkit": ext})
+
+
+@bp.delete(ENTITY + "/faults")
+def clear_entity(collection: str, entity_id: str):
+    _authorize_clear()
+    entity = lookup(collection, entity_id)
+    statuses = _statuses({PARAM_NAMES[collection]: entity.id})
+    fqns = _fqns(entity)
+    codes = [f["fault_code"] for f in _list(statuses) if in_scope(f, fqns)]
+    if codes:
+        _call("fault_clear", {"codes": codes}, {PARAM_NAMES[collection]: entity.id})
+    return _no_content()
+
+
+@bp.get(ENTITY + "/faults/<fault_code>")
+def get_one(collection: str, entity_id: str, fault_code: str):
+    entity = lookup(collection, entity_id)
+    _check_code(fault_code)
+    return json_response(detail(_scoped_fault(collection, entity, fault_code)))
+
+
+@bp.delete(ENTITY + "/faults/<fault_code>")
+def clear_one(collection: str, entity_id: str, fault_code: str):
+    _authorize_clear()
+    entity = lookup(collection, entity_id)
+    _check_code(fault_code)
+    _scoped_fault(collection, entity, fault_code)
+    _call("fault_clear", {"codes": [fault_code]}, {PARAM_NAMES[collection]: entity.id, "fault_code": fault_code})
+    return _no_content()
