@@ -2,9 +2,15 @@
 
 Nothing happens at import time.  ``create_app`` runs in each HTTP worker
 after gunicorn forked it; the ROS-worker client it sets up opens its ZeroMQ
-context only on first use (``app/core/rosclient.py``).  Settings come from
+context only on first use (``app/core/rosclient.py``), and a family's stream hub
+is made when its first stream opens (``app/sse/hub.py``).  Settings come from
 ``common.settings.load()``: the supervisor hands them to gunicorn's workers as
 ``SOVD_*`` environment variables.
+
+The app is the core (``app/core/``: the request hooks, the errors, the ROS
+worker's client, discovery, the root routes, the dashboard) and the resource
+families (``app/<family>/``, found by ``core/family.py``'s ``discover``), each
+plugged in by its ``FAMILY.init_app(app)``.
 
 ``test_config`` overrides settings by their name (``runtime_dir``,
 ``allow_publish``, ``sample_timeout`` ...); any other key goes into
@@ -20,8 +26,20 @@ from flask import Flask
 from common import settings
 
 from . import ratelimit
-from .core import clientaddr, cors, errors, metrics, requestid, rosclient
-from .subscriptions import hub as streams
+from .core import (
+    clientaddr,
+    common,
+    cors,
+    discovery,
+    errors,
+    family,
+    metrics,
+    requestid,
+    root,
+    rosclient,
+    ui,
+    unimplemented,
+)
 
 
 def create_app(test_config: dict[str, Any] | None = None) -> Flask:
@@ -35,10 +53,6 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
             app.config[key] = value
     app.config["SOVD"] = cfg
     app.config["MAX_CONTENT_LENGTH"] = cfg.max_body_bytes
-
-    from .core import common, discovery, root, ui, unimplemented
-    from .data import routes as data
-    from .subscriptions import routes as subscriptions
 
     # `data//a/b` must reach the data route as `/a/b`, not be redirected to `data/a/b`.
     app.url_map.merge_slashes = False
@@ -54,32 +68,11 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
     cors.init_app(app)
     errors.init_app(app)
     rosclient.init_app(app)
-    streams.init_app(app)
     app.register_blueprint(root.bp)
     app.register_blueprint(discovery.bp)
-    app.register_blueprint(data.bp)
-    app.register_blueprint(subscriptions.bp)
-    from .faults import routes as faults  # faults: /diagnostics as SOVD faults
-
-    app.register_blueprint(faults.bp)
-    from .operations import status  # GET .../status: ready or notReady (lifecycle)
-
-    app.register_blueprint(status.bp)
+    family.plug(app, family.discover())   # the resource families, each by its FAMILY.init_app
     app.register_blueprint(unimplemented.bp)  # medkit's routes not served here: 501
     app.register_blueprint(ui.bp)  # the dashboard at /ui/ (app/ui/)
-    from .operations import routes as operations  # operations: services and actions
-    app.register_blueprint(operations.bp)
-    # configurations: the nodes' ROS 2 parameters (app/configurations/routes.py)
-    from .configurations import routes as configurations
-    app.register_blueprint(configurations.bp)
-    from .logs import routes as logs  # logs (issue 22)
-    app.register_blueprint(logs.bp)
-    # Triggers (app/triggers/routes.py, their streams app/triggers/hub.py).
-    from .triggers import hub as triggerstreams
-    from .triggers import routes as triggers
-
-    triggerstreams.init_app(app)
-    app.register_blueprint(triggers.bp)
     if cfg.debug_commands:  # test and bench routes; never in production
         from .core import debug
 

@@ -45,13 +45,13 @@ def authorize_configure() -> None:
 
 
 
-def _param_id(param_id: str) -> None:
+def check_id(param_id: str) -> None:
     if not param_id or len(param_id) > MAX_PARAM_ID:
         raise ApiError(400, "invalid-parameter", "Invalid parameter ID",
                        {"details": "Parameter ID is empty or too long"})
 
 
-def _address(entity: Entity, param_id: str) -> tuple[str | None, str]:
+def address(entity: Entity, param_id: str) -> tuple[str | None, str]:
     """(app id or None, parameter name): medkit's ``address_parameter``."""
     app_id, colon, name = param_id.partition(":")
     if not colon or not app_id or not name or app_id == entity.id or app_id not in entity.app_ids:
@@ -65,12 +65,13 @@ def _timeout() -> float:
 
 def _call(cmd: str, args: dict[str, Any], nodes: int = 1) -> dict[str, Any]:
     """One command; a multi-node one may take a node's time once per ``max_parameter_clients`` nodes (the
-    ROS worker queues the nodes past the cap behind those in flight), and once more."""
+    ROS worker queues the nodes past the cap behind those in flight), and once more.  Its error is the
+    caller's to answer (a node's failure is not the ROS worker's)."""
     waves = math.ceil(nodes / config().max_parameter_clients)
     return rosclient.get().call(cmd, args, _timeout() * (1 if nodes <= 1 else 1 + waves))
 
 
-def _node_error(error: IpcError, message: str, entity_id: str, param_id: str | None = None) -> ApiError:
+def node_error(error: IpcError, message: str, entity_id: str, param_id: str | None = None) -> ApiError:
     """A node's failure as medkit answers it: its classification, the node's text in ``details``."""
     status, code, vendor, retry = IPC_ANSWERS[error.code]
     retry_after = error.params.get("retry_after_s", retry) if status == 503 else retry
@@ -81,19 +82,23 @@ def _node_error(error: IpcError, message: str, entity_id: str, param_id: str | N
                     retry_after=retry_after if isinstance(retry_after, int) else retry)
 
 
-def _ros_call(cmd: str, args: dict[str, Any], message: str, entity_id: str, param_id: str) -> dict[str, Any]:
+# Errors of the ROS worker itself, not of a node: answered as every route answers them.
+WORKER_ERRORS = ("unavailable", "shutdown", "backpressure", "deadline-exceeded")
+
+
+def ros_param(cmd: str, args: dict[str, Any], message: str, entity_id: str, param_id: str) -> dict[str, Any]:
+    """One node's parameter command; a node's failure answered as medkit answers it (:func:`node_error`)."""
     try:
         return _call(cmd, args)
     except IpcError as exc:
-        if exc.code in ("unavailable", "outcome-unknown", "shutdown", "backpressure", "deadline-exceeded",
-                        "bad-request", "unknown-command", "pool-busy"):
+        if exc.code in (*WORKER_ERRORS, "outcome-unknown", "bad-request", "unknown-command", "pool-busy"):
             raise ApiError.from_ipc(exc, {"entity_id": entity_id, "id": param_id}) from None
         if exc.code == "no-such-parameter" and message.startswith("Failed to get"):
             message = "Parameter not found"
-        raise _node_error(exc, message, entity_id, param_id) from None
+        raise node_error(exc, message, entity_id, param_id) from None
 
 
-def _read_value(entity: Entity, fqn: str, param_id: str, source_app: str | None,
+def read_value(entity: Entity, fqn: str, param_id: str, source_app: str | None,
                 parameter: dict[str, Any]) -> dict[str, Any]:
     ext: dict[str, Any] = {"ros2": {"node": fqn}, "entity_id": entity.id, "source": "runtime",
                            "parameter": parameter}
@@ -106,7 +111,7 @@ def _target(entity: Entity, nodes: list[tuple[str, str]], param_id: str) -> tupl
     """(app id, fqn, source_app, name) of a write: the prefixed app, the one node, or medkit's 400."""
     if not nodes:
         raise ApiError(404, "resource-not-found", "No nodes available", {"entity_id": entity.id, "id": param_id})
-    app_id, name = _address(entity, param_id)
+    app_id, name = address(entity, param_id)
     if app_id is not None:
         fqn = dict(nodes).get(app_id)
         if fqn is None:
@@ -154,7 +159,7 @@ def listing(collection: str, entity_id: str):
                 items.append(item)
                 parameters.append({**param, "x-medkit": {"source": app_id, "node": fqn}})
         if not queried and worst is not None:
-            err = _node_error(worst, "Failed to list parameters from any node", entity.id)
+            err = node_error(worst, "Failed to list parameters from any node", entity.id)
             if unavailable:
                 err.parameters["unavailable_nodes"] = unavailable
             if failed:
@@ -175,39 +180,39 @@ def listing(collection: str, entity_id: str):
 @bp.get(ENTITY + "/<param_id>")
 def read(collection: str, entity_id: str, param_id: str):
     entity = lookup(collection, entity_id)
-    _param_id(param_id)
+    check_id(param_id)
     nodes = member_nodes(entity)
     if not nodes:
         raise ApiError(404, "resource-not-found", "No nodes available", {"entity_id": entity.id, "id": param_id})
-    app_id, name = _address(entity, param_id)
+    app_id, name = address(entity, param_id)
     if app_id is not None:
         fqn = dict(nodes)[app_id]
-        parameter = _ros_call("param_get", {"node": fqn, "name": name}, "Failed to get parameter",
+        parameter = ros_param("param_get", {"node": fqn, "name": name}, "Failed to get parameter",
                               entity.id, param_id)
-        return json_response(_read_value(entity, fqn, param_id, app_id, parameter))
+        return json_response(read_value(entity, fqn, param_id, app_id, parameter))
     # A bare id on an entity of several nodes: the first node that has it (medkit's order).
     worst: IpcError | None = None
     for app, fqn in nodes:
         try:
             parameter = _call("param_get", {"node": fqn, "name": name})
         except IpcError as exc:
-            if exc.code in ("unavailable", "shutdown", "backpressure", "deadline-exceeded"):
+            if exc.code in WORKER_ERRORS:
                 raise ApiError.from_ipc(exc, {"entity_id": entity.id, "id": param_id}) from None
             if exc.code != "no-such-parameter" and (worst is None or IPC_ANSWERS[exc.code][0] == 503):
                 worst = exc
             continue
         source_app = app if len(nodes) > 1 else None
-        return json_response(_read_value(entity, fqn, name, source_app, parameter))
+        return json_response(read_value(entity, fqn, name, source_app, parameter))
     if worst is None:
         raise ApiError(404, "resource-not-found", "Parameter not found", {"entity_id": entity.id, "id": param_id})
-    raise _node_error(worst, "Failed to get parameter from any node", entity.id, param_id)
+    raise node_error(worst, "Failed to get parameter from any node", entity.id, param_id)
 
 
 @bp.put(ENTITY + "/<param_id>")
 def write(collection: str, entity_id: str, param_id: str):
     authorize_configure()
     check_entity_id(entity_id)
-    _param_id(param_id)
+    check_id(param_id)
     body = json_object('{"data": <value>}')
     if "data" in body:
         value = body["data"]
@@ -218,9 +223,9 @@ def write(collection: str, entity_id: str, param_id: str):
     _check_value(value)
     entity = lookup(collection, entity_id)
     _, fqn, source_app, name = _target(entity, member_nodes(entity), param_id)
-    result = _ros_call("param_set", {"node": fqn, "name": name, "value": value}, "Failed to set parameter",
+    result = ros_param("param_set", {"node": fqn, "name": name, "value": value}, "Failed to set parameter",
                        entity.id, param_id)
-    return json_response(_read_value(entity, fqn, param_id, source_app, result))
+    return json_response(read_value(entity, fqn, param_id, source_app, result))
 
 
 def _check_value(value: Any) -> None:
@@ -239,9 +244,9 @@ def _check_value(value: Any) -> None:
 def reset(collection: str, entity_id: str, param_id: str):
     authorize_configure()
     entity = lookup(collection, entity_id)
-    _param_id(param_id)
+    check_id(param_id)
     _, fqn, _, name = _target(entity, member_nodes(entity), param_id)
-    _ros_call("param_reset", {"node": fqn, "name": name}, "Failed to reset parameter", entity.id, param_id)
+    ros_param("param_reset", {"node": fqn, "name": name}, "Failed to reset parameter", entity.id, param_id)
     return Response(status=204)
 
 

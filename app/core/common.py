@@ -115,6 +115,23 @@ def member_nodes(entity: Entity) -> list[tuple[str, str]]:
     return out
 
 
+def node_names(entity: Entity, index: Any = None) -> list[str]:
+    """The node FQNs behind ``entity`` (an app's own; a component's or a function's apps'), sorted, once each:
+    the scope of its faults and its logs (medkit's rule)."""
+    if entity.collection == "apps":
+        apps: list[Entity | None] = [entity]
+    else:
+        index = index if index is not None else rosclient.get().entities()
+        apps = [index.get("apps", app_id) for app_id in entity.app_ids]
+    fqns = set()
+    for app in apps:
+        ros2 = (app.x_medkit.get("ros2") if app is not None else None) or {}
+        fqn = ros2.get("node") if isinstance(ros2, dict) else None
+        if isinstance(fqn, str) and fqn:
+            fqns.add(fqn)
+    return sorted(fqns)
+
+
 def lookup_owner(collection: str, entity_id: str) -> Entity:
     """The entity whose relation collection is asked for, or medkit's typed 400/404.
 

@@ -47,6 +47,7 @@ from common import runfiles
 from ipc import counters
 
 from . import rosclient
+from .family import plugged
 
 # Latency buckets (seconds): 0.25 ms (a cached answer on a quiet machine) to 5 s (a cold read's
 # sample_timeout plus IPC), about three per decade.
@@ -194,7 +195,7 @@ ROS_FIELDS = tuple(c for c in counters.ROS_COUNTERS
                    if c.metric and c.kind in (counters.COUNTER, counters.GAUGE, counters.FLAG))
 
 
-def _number(value: Any) -> float | None:
+def number(value: Any) -> float | None:
     if isinstance(value, bool):
         return float(value)
     if isinstance(value, int | float):
@@ -205,9 +206,10 @@ def _number(value: Any) -> float | None:
 class RosWorkerCollector:
     """The ROS worker's counters, asked once per scrape (``stats``, deadline ≤ ``ipc_timeout``)."""
 
-    def __init__(self, ros: rosclient.RosClient, timeout: float):
+    def __init__(self, ros: rosclient.RosClient, timeout: float, families: tuple = ()):
         self.ros = ros
         self.timeout = timeout
+        self.families = families
 
     def collect(self) -> Iterator[Any]:
         from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
@@ -221,7 +223,7 @@ class RosWorkerCollector:
         families: dict[str, Any] = {}  # a metric made of several counters: one family, a sample each
         for c in ROS_FIELDS:
             part = stats.get(c.section)
-            value = _number(part.get(c.name)) if isinstance(part, dict) else None
+            value = number(part.get(c.name)) if isinstance(part, dict) else None
             family = CounterMetricFamily if c.kind == counters.COUNTER else GaugeMetricFamily
             if c.label is None:
                 if value is not None:
@@ -236,7 +238,9 @@ class RosWorkerCollector:
         yield from families.values()
         details = stats.get("details") if isinstance(stats.get("details"), dict) else {}
         yield from self._labelled(details)
-        yield from _fault_metrics(stats.get("faults"))  # faults (rosworker/faults/manager.py)
+        for family in self.families:  # what a family exports besides its counters (faults by severity)
+            if family.metrics is not None:
+                yield from family.metrics(stats)
 
     def _labelled(self, details: dict) -> Iterator[Any]:
         """The details' maps: one counter family per map (two for a command's count and time)."""
@@ -248,42 +252,19 @@ class RosWorkerCollector:
             if c.kind == counters.BY:
                 family = CounterMetricFamily(c.metric, c.help, labels=[c.label])
                 for key, value in sorted(values.items()):
-                    if _number(value) is not None:
-                        family.add_metric([str(key)], _number(value))
+                    if number(value) is not None:
+                        family.add_metric([str(key)], number(value))
                 yield family
             elif c.kind == counters.TIMINGS:
                 seconds_name, seconds_help = counters.TIMINGS_SECONDS[c.metric]
                 count = CounterMetricFamily(c.metric, c.help, labels=[c.label])
                 seconds = CounterMetricFamily(seconds_name, seconds_help, labels=[c.label])
                 for key, totals in sorted(values.items()):
-                    if isinstance(totals, dict) and _number(totals.get("count")) is not None:
-                        count.add_metric([str(key)], _number(totals["count"]))
-                        seconds.add_metric([str(key)], (_number(totals.get("time_us")) or 0.0) / 1e6)
+                    if isinstance(totals, dict) and number(totals.get("count")) is not None:
+                        count.add_metric([str(key)], number(totals["count"]))
+                        seconds.add_metric([str(key)], (number(totals.get("time_us")) or 0.0) / 1e6)
                 yield count
                 yield seconds
-
-
-def _fault_metrics(part: Any) -> Iterator[Any]:
-    """faults: ``sovd_faults_active{severity}`` and the fault store's counters (rosworker/faults/manager.py)."""
-    from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
-
-    if not isinstance(part, dict):
-        return
-    by = part.get("active_by_severity")
-    family = GaugeMetricFamily("sovd_faults_active", "Active faults (PREFAILED, CONFIRMED, PREPASSED), by severity",
-                               labels=["severity"])
-    for label, value in sorted(by.items() if isinstance(by, dict) else []):
-        if _number(value) is not None:
-            family.add_metric([str(label)], _number(value))
-    yield family
-    for key, name, kind, text in (
-            ("confirmed", "sovd_faults_confirmed", GaugeMetricFamily, "Confirmed faults"),
-            ("store_size", "sovd_faults_stored", GaugeMetricFamily, "Faults kept in the fault store"),
-            ("store_write_errors", "sovd_fault_store_write_errors", CounterMetricFamily,
-             "Failed writes of the fault store"),
-            ("refused", "sovd_faults_refused", CounterMetricFamily, "New faults not recorded at max_faults")):
-        if _number(part.get(key)) is not None:
-            yield kind(name, text, value=_number(part[key]))
 
 
 # ---- the supervisor ------------------------------------------------------------------------------
@@ -299,8 +280,8 @@ class SupervisorCollector:
         state = runfiles.read_supervisor_state(self.runtime_dir)
         if state is None:
             return  # not under the supervisor (a test app)
-        restarts = _number(state.get("ros_worker_restarts"))
-        started = _number(state.get("ros_worker_started_at"))
+        restarts = number(state.get("ros_worker_restarts"))
+        started = number(state.get("ros_worker_started_at"))
         if restarts is not None:
             yield CounterMetricFamily("sovd_supervisor_ros_worker_restarts", "ROS worker restarts by the "
                                       "supervisor since the gateway started", value=restarts)
@@ -333,7 +314,8 @@ def metrics() -> Response:
         MultiProcessCollector(registry, path=path)
     else:
         registry.register(_ThisProcess())
-    registry.register(RosWorkerCollector(rosclient.get(), min(rosclient.STATS_TIMEOUT_S, cfg.ipc_timeout)))
+    registry.register(RosWorkerCollector(rosclient.get(), min(rosclient.STATS_TIMEOUT_S, cfg.ipc_timeout),
+                                         plugged(current_app)))
     registry.register(SupervisorCollector(cfg.runtime_dir))
     return Response(generate_latest(registry), mimetype=None, content_type=CONTENT_TYPE_LATEST)
 

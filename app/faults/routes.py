@@ -14,7 +14,7 @@ these routes ask it for them and apply medkit's rules here:
   one of the entity's nodes (or below one: ``/a/b`` is below ``/a``).  A fault
   out of scope is "not found" there.
 - Clearing (DELETE) is a write: ``allow_fault_clear`` and the bearer token.
-- ``GET /api/v1/faults/stream``: Server-Sent Events (``app/faults/hub.py``).
+- ``GET /api/v1/faults/stream``: Server-Sent Events (``hub.py``).
 """
 
 from __future__ import annotations
@@ -24,15 +24,13 @@ from typing import Any
 
 from flask import Blueprint, current_app, request
 
-from ipc.errors import IpcError
-
-from ..core import rosclient
 from ..core.auth import authorize_change
-from ..core.common import config, json_response, lookup
+from ..core.common import config, json_response, lookup, node_names
 from ..core.entities import API_BASE, PARAM_NAMES, Entity
 from ..core.errors import ApiError
-from ..subscriptions.hub import rfc3339
-from . import hub as faultstream
+from ..core.roscall import ros_call
+from ..sse.stream import rfc3339
+from . import hub
 
 bp = Blueprint("faults", __name__, url_prefix=API_BASE)
 
@@ -72,27 +70,11 @@ def _statuses(extra: dict[str, Any] | None = None) -> tuple[str, ...]:
 
 
 def _call(cmd: str, args: dict[str, Any], params: dict[str, Any] | None = None) -> dict[str, Any]:
-    try:
-        return rosclient.get().call(cmd, args, config().ipc_timeout)
-    except IpcError as exc:
-        raise ApiError.from_ipc(exc, params) from None
+    return ros_call(cmd, args, config().ipc_timeout, params=params)
 
 
 def _list(statuses: tuple[str, ...]) -> list[dict[str, Any]]:
     return _call("fault_list", {"statuses": list(statuses)}).get("items") or []
-
-
-def _fqns(entity: Entity) -> list[str]:
-    """The node names whose faults belong to ``entity`` (its app's, or those of the apps it hosts)."""
-    if entity.collection == "apps":
-        return [entity.x_medkit.get("ros2", {}).get("node", "")]
-    index = rosclient.get().entities()
-    out = []
-    for app_id in entity.app_ids:
-        app = index.get("apps", app_id)
-        if app is not None:
-            out.append(app.x_medkit.get("ros2", {}).get("node", ""))
-    return sorted({f for f in out if f})
 
 
 def in_scope(fault: dict[str, Any], fqns: list[str]) -> bool:
@@ -120,14 +102,9 @@ def _authorize_clear() -> None:
 def _scoped_fault(collection: str, entity: Entity, code: str) -> dict[str, Any]:
     """``fault_get`` of ``code``, 404 when there is none or it is out of the entity's scope."""
     params = {PARAM_NAMES[collection]: entity.id, "fault_code": code}
-    try:
-        answer = rosclient.get().call("fault_get", {"code": code}, config().ipc_timeout)
-    except IpcError as exc:
-        if exc.code == "no-such-fault":
-            raise ApiError(404, "resource-not-found", "Fault not found",
-                           {"details": f"Fault not found: {code}", **params}) from None
-        raise ApiError.from_ipc(exc, params) from None
-    if not in_scope(answer.get("fault") or {}, _fqns(entity)):
+    answer = ros_call("fault_get", {"code": code}, config().ipc_timeout, params=params, not_found={
+        "no-such-fault": ("Fault not found", {"details": f"Fault not found: {code}", **params})})
+    if not in_scope(answer.get("fault") or {}, node_names(entity)):
         raise ApiError(404, "resource-not-found", "Fault not found", {"details": OUT_OF_SCOPE, **params})
     return answer
 
@@ -210,20 +187,13 @@ def clear_all_global():
 @bp.get("/faults/stream")
 def stream():
     cfg = config()
-    hub = faultstream.hub(cfg.runtime_dir, cfg.stream_send_timeout)
-    if len(hub.streams) >= cfg.max_fault_streams:
+    if hub.open_streams() >= cfg.max_fault_streams:
         raise ApiError(503, "service-unavailable", "Maximum number of SSE clients reached. Please try again later.",
                        {"max_fault_streams": cfg.max_fault_streams}, headers={"Retry-After": "5"})
     raw = request.headers.get("Last-Event-ID", "").strip()
     last_id = int(raw) if raw.isdigit() and len(raw) <= 18 else 0
-    ros = rosclient.get()
-
-    def replay(after: int) -> list[dict[str, Any]]:
-        return ros.call("fault_events", {"after": after}, faultstream.REPLAY_TIMEOUT).get("events") or []
-
-    return current_app.response_class(
-        faultstream.FaultStream(hub, last_id).body(replay, request.environ.get("gunicorn.socket")), mimetype="text/event-stream",
-        headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+    return current_app.response_class(hub.body(last_id, request.environ), mimetype="text/event-stream",
+                                      headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
 
 
 # ---- an entity's faults ---------------------------------------------------------------------------------
@@ -231,7 +201,7 @@ def stream():
 def list_entity(collection: str, entity_id: str):
     entity = lookup(collection, entity_id)
     statuses = _statuses({PARAM_NAMES[collection]: entity.id})
-    fqns = _fqns(entity)
+    fqns = node_names(entity)
     items = [f for f in _list(statuses) if in_scope(f, fqns)]
     if collection == "apps":
         ext: dict[str, Any] = {"entity_id": entity.id, "source_id": fqns[0] if fqns else "",
@@ -251,7 +221,7 @@ def clear_entity(collection: str, entity_id: str):
     _authorize_clear()
     entity = lookup(collection, entity_id)
     statuses = _statuses({PARAM_NAMES[collection]: entity.id})
-    fqns = _fqns(entity)
+    fqns = node_names(entity)
     codes = [f["fault_code"] for f in _list(statuses) if in_scope(f, fqns)]
     if codes:
         _call("fault_clear", {"codes": codes}, {PARAM_NAMES[collection]: entity.id})

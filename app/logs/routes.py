@@ -30,8 +30,8 @@ from flask import Blueprint, current_app, request
 from ..core import rosclient
 from ..core.auth import authorize_change
 from ..core.bodies import json_object
-from ..core.common import config, json_response, lookup
-from ..core.entities import API_BASE, Entities, Entity
+from ..core.common import config, json_response, lookup, node_names
+from ..core.entities import API_BASE
 from ..core.errors import ApiError
 
 bp = Blueprint("logs", __name__, url_prefix=API_BASE)
@@ -42,21 +42,6 @@ LEVELS = {10: "debug", 20: "info", 30: "warning", 40: "error", 50: "fatal"}
 MAX_CONTEXT = 256
 MAX_ENTRIES = 10000
 LOGS_IPC_MARGIN_S = 1.0   # a query of 10,000 lines may take longer than a plain command
-
-
-def _fqn(app: Entity | None) -> str | None:
-    ros2 = (app.x_medkit.get("ros2") if app is not None else None) or {}
-    fqn = ros2.get("node") if isinstance(ros2, dict) else None
-    return fqn if isinstance(fqn, str) and fqn else None
-
-
-def source_fqns(index: Entities, entity: Entity) -> list[str]:
-    """The node FQNs whose lines an entity shows (medkit's fault-scope rule: its apps)."""
-    if entity.collection == "apps":
-        apps = [entity]
-    else:
-        apps = [index.get("apps", app_id) for app_id in entity.app_ids]
-    return sorted({fqn for fqn in map(_fqn, apps) if fqn})
 
 
 def timestamp(sec: int, nanosec: int) -> str:
@@ -98,7 +83,7 @@ def logs(collection: str, entity_id: str):
     entity = lookup(collection, entity_id)
     severity, context = _query()
     ros = rosclient.get()
-    fqns = source_fqns(ros.entities(), entity)
+    fqns = node_names(entity, ros.entities())
     result = ros.call("logs", {"entity_id": entity.id, "nodes": fqns, "severity": severity, "context": context},
                       config().ipc_timeout + LOGS_IPC_MARGIN_S)
     rows = result.get("rows")

@@ -29,6 +29,7 @@ from ..core.bodies import json_object
 from ..core.common import check_entity_id, config, json_response, lookup, member_nodes
 from ..core.entities import API_BASE, Entity
 from ..core.errors import ApiError
+from ..core.roscall import ros_call
 
 bp = Blueprint("operations", __name__, url_prefix=API_BASE)
 
@@ -154,16 +155,6 @@ def _params(entity: Entity, op_id: str, exec_id: str | None = None) -> dict[str,
     return out
 
 
-def _ipc(cmd: str, args: dict[str, Any], params: dict[str, Any], timeout: float | None = None) -> dict:
-    try:
-        return rosclient.get().call(cmd, args, timeout)
-    except IpcError as exc:
-        if exc.code == "deadline-exceeded" and timeout is not None:
-            raise ApiError(504, "not-responding", "The ROS worker did not answer in time; the outcome is "
-                                                  "unknown", params) from None
-        raise ApiError.from_ipc(exc, params) from None
-
-
 def _call_timeout() -> float:
     return config().service_call_timeout + CALL_IPC_MARGIN_S
 
@@ -197,11 +188,11 @@ def execute(collection: str, entity_id: str, op_id: str):
     if not isinstance(type_name, str):
         raise ApiError(400, "invalid-parameter", "type: must be a string", params)
     if op.kind == "service":
-        result = _ipc("op_call", {"service": op.path, "type": type_name, "parameters": data}, params,
-                      _call_timeout())
+        result = ros_call("op_call", {"service": op.path, "type": type_name, "parameters": data}, _call_timeout(),
+                          params=params, write=True)
         return json_response({"parameters": result.get("response")})
-    result = _ipc("op_goal", {"action": op.path, "type": type_name, "parameters": data,
-                              "entity_id": entity.id}, params, _call_timeout())
+    result = ros_call("op_goal", {"action": op.path, "type": type_name, "parameters": data,
+                                  "entity_id": entity.id}, _call_timeout(), params=params, write=True)
     location = f"{request.path.rstrip('/')}/{result['id']}"
     return json_response({"id": result["id"], "status": "running"}, 202, {"Location": location})
 
@@ -212,16 +203,16 @@ def executions(collection: str, entity_id: str, op_id: str):
     op = resolve(entity, op_id, with_info=False)
     if op.kind != "action":
         return json_response({"items": []})
-    goals = _ipc("op_goals", {"action": op.path}, _params(entity, op_id))["items"]
+    goals = ros_call("op_goals", {"action": op.path}, params=_params(entity, op_id))["items"]
     return json_response({"items": [{"id": g["id"]} for g in goals]})
 
 
-def _goal(entity_id: str, op_id: str, exec_id: str) -> tuple[dict[str, Any], dict[str, Any]]:
+def goal_of(entity_id: str, op_id: str, exec_id: str) -> tuple[dict[str, Any], dict[str, Any]]:
     check_entity_id(entity_id)
     params = {"entity_id": entity_id, "operation_id": op_id, "execution_id": exec_id[:EXECUTION_ID_MAX]}
     if not exec_id or len(exec_id) > EXECUTION_ID_MAX:
         raise ApiError(404, "resource-not-found", "Execution not found", params)
-    return _ipc("op_exec", {"id": exec_id}, params), params
+    return ros_call("op_exec", {"id": exec_id}, params=params), params
 
 
 def execution_body(goal: dict[str, Any]) -> dict[str, Any]:
@@ -244,12 +235,12 @@ def execution_body(goal: dict[str, Any]) -> dict[str, Any]:
 
 @bp.get(EXECUTION)
 def execution(collection: str, entity_id: str, op_id: str, exec_id: str):
-    goal, _ = _goal(entity_id, op_id, exec_id)
+    goal, _ = goal_of(entity_id, op_id, exec_id)
     return json_response(execution_body(goal))
 
 
 def _cancel(entity_id: str, op_id: str, exec_id: str, verb: str, extra: dict[str, Any]) -> dict[str, Any]:
-    goal, params = _goal(entity_id, op_id, exec_id)
+    goal, params = goal_of(entity_id, op_id, exec_id)
     params.update(extra)
     try:
         return rosclient.get().call("op_cancel", {"id": goal["id"]}, _call_timeout())
@@ -283,7 +274,7 @@ def update(collection: str, entity_id: str, op_id: str, exec_id: str):
         result = _cancel(entity_id, op_id, exec_id, "Stop", {"capability": "stop"})
         return json_response({"id": result.get("id", exec_id), "status": result.get("status", "running")}, 202,
                              {"Location": request.path})
-    goal, _ = _goal(entity_id, op_id, exec_id)
+    goal, _ = goal_of(entity_id, op_id, exec_id)
     if capability == "execute":
         raise ApiError(409, "precondition-not-fulfilled",
                        "Cannot re-execute while operation is running. Cancel first, then start new execution.",

@@ -9,10 +9,10 @@ commands, ``rosworker/triggers/registry.py``), so one made through one HTTP work
 streamed through any other.  Writes ask :func:`authorize_change`, like the
 cyclic subscriptions' (the bearer token when one is set).
 
-Observable resources: the collections of :data:`OBSERVABLE`: ``data``, and
-``faults`` (``…/faults``, ``…/faults/{code}``) and ``logs`` in the entity's
-scope (``app/triggers/scopes.py``); medkit's other collections (operations,
-updates) are refused as not observable on this gateway yet.
+Observable resources: the collections a family made observable
+(``core/resources.py``: the data family's topics, the faults and the logs in the
+entity's scope); medkit's other collections (operations, updates) are refused as
+not observable on this gateway yet.
 """
 
 from __future__ import annotations
@@ -21,22 +21,19 @@ import json
 import math
 import re
 from typing import Any
-from urllib.parse import urlsplit
 
 from flask import Blueprint, current_app, request
 
 from ipc import jsonpointer
-from ipc.errors import IpcError
 
-from ..core import rosclient
 from ..core.auth import authorize_change
 from ..core.bodies import json_object
 from ..core.common import json_response, lookup
 from ..core.entities import API_BASE
 from ..core.errors import ApiError
-from ..subscriptions.routes import UNKNOWN_CLIENT, parse_resource
-from . import hub as triggerstreams
-from . import scopes as triggerscopes
+from ..core.resources import Observable, Resource, client, observables, parse_resource
+from ..core.roscall import ros_call
+from . import hub
 
 bp = Blueprint("triggers", __name__, url_prefix=API_BASE)
 
@@ -45,9 +42,6 @@ CONDITIONS = ("OnChange", "OnChangeTo", "EnterRange", "LeaveRange")
 MAX_LIFETIME = 2**31 - 1
 TARGET_VALUE_MAX = 4096  # bytes of the JSON of an OnChangeTo target_value (rosworker/triggers/registry.py checks it too)
 _TRIGGER_ID = re.compile(r"^trig_[0-9a-f]{16}$")
-_COLLECTION = re.compile(r"^/api/v1/[^/?#]+/[^/?#]+/([^/?#]+)")
-# Collections a trigger may observe here -> the ROS worker's source kind (rosworker/triggers/registry.py SOURCES).
-OBSERVABLE = {"data": "data", "faults": "faults", "logs": "logs"}  # faults and logs: app/triggers/scopes.py
 MEDKIT_COLLECTIONS = ("data", "faults", "operations", "updates", "logs")
 
 
@@ -127,35 +121,18 @@ def _path(body: dict[str, Any]) -> str:
     return value
 
 
-def _source(resource: Any, collection: str, entity_id: str) -> tuple[str, str, str]:
-    """``(source kind, target, bytes mode)`` of the observed resource."""
-    if isinstance(resource, str):
-        match = _COLLECTION.match(urlsplit(resource).path) if len(resource) <= 4096 else None
-        if match and match.group(1) not in OBSERVABLE:
-            parse_resource_entity(resource, collection, entity_id)
-            name = match.group(1)[:100]
-            if name in MEDKIT_COLLECTIONS or name.startswith("x-"):
-                raise ApiError(400, "invalid-parameter",
-                               f"Collection '{name}' is not observable by triggers on this gateway; "
-                               f"supported: {', '.join(OBSERVABLE)}",
-                               {"parameter": "resource", "collection": name})
-            raise ApiError(400, "invalid-parameter",
-                           "Unknown collection. Supported: data, faults, operations, updates, logs, "
-                           "or x-* vendor extensions", {"parameter": "resource", "collection": name})
-        if match and match.group(1) in triggerscopes.COLLECTIONS:  # faults and logs: resolved once path is read
-            parse_resource_entity(resource, collection, entity_id)
-            return match.group(1), "", ""
-    topic, mode = parse_resource(resource, collection, entity_id)
-    return "data", topic, mode
-
-
-def parse_resource_entity(resource: str, collection: str, entity_id: str) -> None:
-    """The entity checks of a resource of another collection (mismatch before "not observable")."""
-    try:
-        parse_resource(resource, collection, entity_id)
-    except ApiError as exc:
-        if exc.vendor_code in ("x-medkit-invalid-resource-uri", "x-medkit-entity-mismatch"):
-            raise
+def _observable(resource: Resource) -> Observable:
+    """The collection a trigger's resource names, if a family made it observable (``core/resources.py``)."""
+    observable = observables().get(resource.what)
+    if observable is not None:
+        return observable
+    name = resource.what[:100]
+    if name in MEDKIT_COLLECTIONS or name.startswith("x-"):
+        raise ApiError(400, "invalid-parameter",
+                       f"Collection '{name}' is not observable by triggers on this gateway; "
+                       f"supported: {', '.join(observables())}", {"parameter": "resource", "collection": name})
+    raise ApiError(400, "invalid-parameter", "Unknown collection. Supported: data, faults, operations, updates, logs, "
+                   "or x-* vendor extensions", {"parameter": "resource", "collection": name})
 
 
 def public(trigger: dict[str, Any]) -> dict[str, Any]:
@@ -172,22 +149,12 @@ def public(trigger: dict[str, Any]) -> dict[str, Any]:
 
 
 def _call(cmd: str, args: dict[str, Any], trigger_id: str | None = None) -> dict[str, Any]:
-    try:
-        return rosclient.get().call(cmd, args)
-    except IpcError as exc:
-        if exc.code == "no-such-trigger":
-            raise ApiError(404, "resource-not-found", "Trigger not found",
-                           {"trigger_id": (trigger_id or "")[:100]}) from None
-        raise ApiError.from_ipc(exc) from None
+    return ros_call(cmd, args, not_found={"no-such-trigger": ("Trigger not found", {"trigger_id": (trigger_id or "")[:100]})})
 
 
 def _known(trigger_id: str) -> None:
     if not _TRIGGER_ID.match(trigger_id):
         raise ApiError(404, "resource-not-found", "Trigger not found", {"trigger_id": trigger_id[:100]})
-
-
-def _client() -> str:
-    return (request.environ.get("REMOTE_ADDR") or UNKNOWN_CLIENT)[:256]
 
 
 @bp.post(ENTITY + "/triggers")
@@ -197,17 +164,19 @@ def create(collection: str, entity_id: str):
     body = json_object('{"resource", "trigger_condition", "path", "protocol", "multishot", "persistent", '
                        '"lifetime"}')
     condition = _condition(body)
-    source, target, mode = _source(body.get("resource"), collection, entity.id)
+    resource = parse_resource(body.get("resource"), collection, entity.id)
+    observable = _observable(resource)
     path = _path(body)
-    if source in triggerscopes.COLLECTIONS:  # faults and logs: the entity's scope, the condition's fit
-        source, target, mode = triggerscopes.resolve(body["resource"], entity, condition, path)
+    # What of it: a topic; the entity's scope (faults, logs); and whether the condition can apply.
+    target, mode = observable.resolve(resource, entity, condition, path)
     protocol = body.get("protocol", "sse")
     if protocol != "sse":
         raise _bad("Unsupported protocol. Supported: 'sse'", "protocol", protocol)
-    args = {"collection": collection, "entity_id": entity.id, "resource": body["resource"], "source": source,
+    args = {"collection": collection, "entity_id": entity.id, "resource": body["resource"],
+            "source": observable.source or observable.collection,
             "target": target, "bytes": mode, "path": path, "condition": condition,
             "multishot": _flag(body, "multishot"), "persistent": _flag(body, "persistent"),
-            "lifetime": _lifetime(body, required=False), "client": _client()}
+            "lifetime": _lifetime(body, required=False), "client": client()}
     answer = public(_call("trig_create", args))
     return json_response(answer, 201, headers={"Location": answer["event_source"].removesuffix("/events")})
 
@@ -255,5 +224,5 @@ def events(collection: str, entity_id: str, trigger_id: str):
     if trigger["status"] != "active" and not trigger.get("replayable"):
         raise ApiError(404, "resource-not-found", "Trigger expired or inactive", {"trigger_id": trigger_id})
     return current_app.response_class(
-        triggerstreams.body(trigger, request.environ), mimetype="text/event-stream",
+        hub.body(trigger, request.environ), mimetype="text/event-stream",
         headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})

@@ -10,7 +10,7 @@ import gc
 import weakref
 
 from app.core import rosclient
-from app.subscriptions import hub as streams
+from app.sse import hub as sse
 from tests.support.fakeworker import make_app
 
 
@@ -20,7 +20,7 @@ def test_an_unclosed_app_is_freed_without_the_cyclic_collector(tmp_path):
     assert client.get("/api/v1/health").status_code == 200  # a call: the context and sockets exist
     ros = app.extensions[rosclient.EXTENSION].client
     assert ros.channel_count >= 1
-    alive = [weakref.ref(x) for x in (ros, app.extensions[streams.EXTENSION])]
+    alive = [weakref.ref(x) for x in (ros, app.extensions[sse.EXTENSION]["subscriptions"])]
     gc.disable()
     try:
         del app, client, ros

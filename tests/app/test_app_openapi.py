@@ -14,7 +14,7 @@ import pytest
 from app import openapi
 from app.core import unimplemented
 from app.core.entities import RELATIONS
-from app.faults import hub as faultstream
+from app.sse.hub import hub_of
 from ipc.errors import IpcError
 from tests.support.fakeworker import ROBOT, FakeWorker, data_sample, make_app
 
@@ -283,7 +283,7 @@ def test_every_route_answers_per_the_document(doc):
         assert r.status_code == 200
         seen.setdefault(check(doc, "GET", "/api/v1/faults/stream", r), set()).add(r.status_code)
         r.close()
-        hub = faultstream.hub(fw.runtime_dir, 1.0)
+        hub = hub_of("faults", client.application)
         held = [object() for _ in range(16)]  # max_fault_streams (16) streams open in this HTTP worker
         hub.streams.update(held)
         r = client.get("/api/v1/faults/stream")

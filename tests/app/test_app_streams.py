@@ -22,13 +22,8 @@ import psutil
 import pytest
 import requests
 
-from app.subscriptions.hub import (
-    SILENT_CHECK,
-    STREAM_BUFFER_BYTES,
-    STREAM_SNDBUF,
-    Stream,
-    StreamHub,
-)
+from app.sse.stream import STREAM_BUFFER_BYTES, STREAM_SNDBUF
+from app.subscriptions.hub import SILENT_CHECK, StreamHub
 from ipc.errors import IpcError
 from tests.support.gateway import Gateway
 from tests.support.metrics import families, value
@@ -332,7 +327,7 @@ def test_a_streams_buffer_is_bounded_in_bytes_as_well_as_frames():
     hub = StreamHub("/nonexistent", lookup=lambda stream: {})
     sub = {"id": "sub_0123456789abcdef", "collection": "apps", "entity_id": APP, "topic": TOPIC,
            "key": b"d|fast|array|/s/temperature|", "interval": "fast", "expires_at_ns": time.time_ns() + 10**10}
-    small, large = Stream(hub, sub), Stream(hub, sub)
+    small, large = hub.stream(sub), hub.stream(sub)
     for n in range(10):
         small.push(b"%d" % n * 100)
         large.push(b"%d" % n * (STREAM_BUFFER_BYTES // 2 + 1))

@@ -1,0 +1,107 @@
+"""How a resource family plugs into the HTTP workers: :class:`Family`.
+
+A family (the same name as in the ROS worker: ``app/faults/`` beside
+``rosworker/faults/``) is one package of ``app/`` whose ``__init__.py`` holds
+``FAMILY``::
+
+    FAMILY = Family(
+        name="logs",
+        blueprints=(routes.bp,),                  # its routes, under /api/v1
+        spec=spec.SPEC,                           # its part of the OpenAPI document (app/openapi/)
+        health=Health("x-medkit-logs", counters_section("logs")),   # its /health section
+        capabilities=lambda cfg: {"logs": True},  # its entries of GET /api/v1/'s capabilities
+        setup=setup,                              # anything else: a hub, a registration (resources.py)
+    )
+
+``create_app`` (``app/wsgi.py``) finds the families (:func:`discover`: every
+package of ``app/`` that holds a ``FAMILY``, in name order) and calls
+``FAMILY.init_app(app)`` for each: Home Assistant's ``async_setup_entry``.  The
+root routes (``core/root.py``: ``/health``, the capabilities), the OpenAPI
+document (``app/openapi/``) and the metrics (``core/metrics.py``) loop over the
+families and know none by name.  A family imports no other family: it reaches
+their resources through ``core/resources.py``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+from flask import Blueprint, Flask
+
+from ipc import counters
+
+NOT_FAMILIES = ("core", "sse", "openapi", "ui")
+EXTENSION = "sovd_families"   # app.extensions: the families create_app plugged in, in order
+
+
+@dataclass(frozen=True)
+class Health:
+    """A family's section of ``/health``: ``build(stats, cfg)`` from the ROS worker's last ``stats``
+    answer (None before its first), never waiting on anything; ``schema``: its part of the
+    ``HealthStatus`` schema (None: made from the counters of ``ipc/counters.py`` ``section``)."""
+
+    key: str
+    build: Callable[[dict[str, Any] | None, Any], dict[str, Any]]
+    schema: dict[str, Any] | None = None
+    section: str = ""
+    required: bool = False
+
+
+def counters_section(name: str) -> Callable[[dict[str, Any] | None, Any], dict[str, Any]]:
+    """The ``build`` of a /health section that is one section of the stats answer (``ipc/counters.py``):
+    zeros and the settings it shows until the ROS worker first answers, then its last answer."""
+    def build(stats: dict[str, Any] | None, cfg: Any) -> dict[str, Any]:
+        section = counters.health_defaults(name, cfg)
+        if stats and isinstance(stats.get(name), dict):
+            section.update(stats[name])
+        return section
+    return build
+
+
+@dataclass(frozen=True)
+class Family:
+    """A resource family of the HTTP side (see the module's docstring)."""
+
+    name: str
+    blueprints: tuple[Blueprint, ...] = ()
+    spec: Any = None
+    health: tuple[Health, ...] = ()
+    capabilities: Callable[[Any], dict[str, bool]] = field(default=lambda cfg: {})
+    metrics: Callable[[dict[str, Any]], Iterator[Any]] | None = None
+    setup: Callable[[Flask], None] | None = None
+
+    def init_app(self, app: Flask) -> None:
+        """Plug the family into ``app``: its routes, and what its ``setup`` does (hubs, registrations)."""
+        for blueprint in self.blueprints:
+            app.register_blueprint(blueprint)
+        if self.setup is not None:
+            self.setup(app)
+
+
+def discover(package: str = "app") -> tuple[Family, ...]:
+    """Every family of ``package``, in name order."""
+    root = importlib.import_module(package)
+    found = []
+    for info in sorted(pkgutil.iter_modules(root.__path__), key=lambda i: i.name):
+        if not info.ispkg or info.name in NOT_FAMILIES:
+            continue
+        family = getattr(importlib.import_module(f"{package}.{info.name}"), "FAMILY", None)
+        if isinstance(family, Family):
+            found.append(family)
+    return tuple(found)
+
+
+def plug(app: Flask, families: tuple[Family, ...]) -> None:
+    """Plug ``families`` into ``app``, in order (``create_app``)."""
+    app.extensions[EXTENSION] = families
+    for family in families:
+        family.init_app(app)
+
+
+def plugged(app: Flask) -> tuple[Family, ...]:
+    """The families plugged into ``app``."""
+    return app.extensions.get(EXTENSION, ())
