@@ -302,6 +302,29 @@ def test_the_stream_sends_confirmations_and_clears_and_replays_after_last_event_
     assert int(replayed["id"]) <= int(cleared["id"])
 
 
+def test_fault_streams_are_counted_with_every_other_stream(gw, diag):
+    """/health's x-medkit-streams (and /metrics) cover fault streams too (issue 30: one hub base)."""
+    def streams() -> dict:
+        return gw.get("/health").json()["x-medkit-streams"]
+
+    # no stream is left open by this module's other tests once their clients' leaving is noticed
+    poll_until(lambda: streams()["open_streams"] == 0, 10, message="no stream open")
+    before = streams()
+    name, code = unique("counted_driver")
+    with requests.get(f"{gw.api}/faults/stream", stream=True, timeout=30) as stream:
+        assert stream.status_code == 200
+        poll_until(lambda: streams()["open_streams"] == 1, 10,
+                   message="the fault stream counted in open_streams")
+        diag("counted_driver", rate=2).set([failing(name)])
+        lines = stream.iter_lines()
+        while read_events(lines, 1)[0]["data"]["fault"]["fault_code"] != code:
+            pass
+        poll_until(lambda: streams()["frames_sent"] > before["frames_sent"], 10,
+                   message="the fault stream's events counted in frames_sent")
+    poll_until(lambda: streams()["open_streams"] == 0, 10,
+               message="the closed fault stream no longer counted")
+
+
 def test_fault_streams_are_bounded_per_http_worker(gw):
     # every HTTP worker holds at most 2 (max_fault_streams); 2 workers: the fifth is refused
     opened = []
