@@ -5,20 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from ..core.entities import PARAM_NAMES
-from ..openapi.build import (
-    BODY_ERRORS,
-    ERRORS,
-    OBJ,
-    RESOURCE_COLLECTIONS,
-    STR,
-    Spec,
-    id_param,
-    obj,
-    ok,
-    op,
-    ref,
-    schema_name,
-)
+from ..openapi import build as oa
 
 RESET_MEANS = ("ROS 2 has no default service: the gateway records each parameter's value the first time it "
                "reads the node (per node start: a restarted node is a new record); reset sets that value back. "
@@ -26,34 +13,34 @@ RESET_MEANS = ("ROS 2 has no default service: the gateway records each parameter
 PARAM_VALUE = {"description": "bool, integer (int64), number (NaN and infinities as \"NaN\", \"Infinity\", "
                               "\"-Infinity\"), string, or an array of one of those; byte_array: integers 0-255"}
 SCHEMAS: dict[str, Any] = {
-    "ConfigurationMetaData": obj(["id", "name", "type"], id={**STR, "description": "the parameter's name; "
-                                  "`<app_id>:<name>` on an entity of several nodes"}, name=STR,
-                                  type={"const": "parameter"}, **{"x-medkit": OBJ}),
-    "ConfigurationMetaDataList": obj(["items"], items={"type": "array", "items": ref("ConfigurationMetaData")},
-                                      **{"x-medkit": {**OBJ, "description": "entity_id, source, aggregation_level, "
+    "ConfigurationMetaData": oa.obj(["id", "name", "type"], id={**oa.STR, "description": "the parameter's name; "
+                                  "`<app_id>:<name>` on an entity of several nodes"}, name=oa.STR,
+                                  type={"const": "parameter"}, **{"x-medkit": oa.OBJ}),
+    "ConfigurationMetaDataList": oa.obj(["items"], items={"type": "array", "items": oa.ref("ConfigurationMetaData")},
+                                      **{"x-medkit": {**oa.OBJ, "description": "entity_id, source, aggregation_level, "
                                          "is_aggregated, parameters (name, value, type of each, x-medkit source and "
                                          "node), source_ids, queried_nodes; partial with unavailable_nodes (503 "
                                          "class) and failed_nodes when some node did not answer"}}),
-    "ConfigurationReadValue": obj(["id", "data"], id=STR, data=PARAM_VALUE, **{"x-medkit": {
-        **OBJ, "description": "ros2.node, entity_id, source, source_app (several nodes), parameter: name, value, "
+    "ConfigurationReadValue": oa.obj(["id", "data"], id=oa.STR, data=PARAM_VALUE, **{"x-medkit": {
+        **oa.OBJ, "description": "ros2.node, entity_id, source, source_app (several nodes), parameter: name, value, "
                               "type (bool, int, double, string, byte_array, bool_array, int_array, double_array, "
                               "string_array) and, on a read, description, read_only, integer_range / "
                               "floating_point_range, additional_constraints, dynamic_typing"}}),
-    "ConfigurationWriteValue": obj(["data"], data=PARAM_VALUE),
-    "ConfigurationDeleteMultiStatus": obj(["entity_id", "results"], entity_id=STR, results={
-        "type": "array", "items": obj(["node", "app_id", "success"], node=STR, app_id=STR,
-                                       success={"type": "boolean"}, error=STR,
-                                       details={**OBJ, "description": "reset: names set back; failed: name "
+    "ConfigurationWriteValue": oa.obj(["data"], data=PARAM_VALUE),
+    "ConfigurationDeleteMultiStatus": oa.obj(["entity_id", "results"], entity_id=oa.STR, results={
+        "type": "array", "items": oa.obj(["node", "app_id", "success"], node=oa.STR, app_id=oa.STR,
+                                       success={"type": "boolean"}, error=oa.STR,
+                                       details={**oa.OBJ, "description": "reset: names set back; failed: name "
                                                                       "and the node's reason of each"})}),
 }
 
 
 def _configuration_paths(collection: str) -> dict[str, Any]:
     """medkit's configurations on apps, components and functions."""
-    title, param = schema_name(collection), PARAM_NAMES[collection]
+    title, param = oa.schema_name(collection), PARAM_NAMES[collection]
     base = f"/{collection}/{{{param}}}/configurations"
-    params = [id_param(collection)]
-    cfg_param = {"name": "config_id", "in": "path", "required": True, "schema": {**STR, "maxLength": 512},
+    params = [oa.id_param(collection)]
+    cfg_param = {"name": "config_id", "in": "path", "required": True, "schema": {**oa.STR, "maxLength": 512},
                  "description": "the parameter's name; `<app_id>:<name>` on an entity of several nodes"}
     token = {"security": [{"bearerAuth": []}, {}]}
     unavailable = ("503", "The node's parameter services are missing, gone, or did not answer within "
@@ -69,32 +56,32 @@ def _configuration_paths(collection: str) -> dict[str, Any]:
     bad = ("400", "A value of the wrong type or out of range, with the node's own reason in `details` "
                   "(`invalid-parameter`), an id too long, a body without `data`, or a bare id on an entity of "
                   "several nodes (`invalid-request`)")
-    write = op(f"set{title}Configuration", "Configuration", "Set one ROS 2 parameter; answers the value as the "
-                "node now reports it", ok("ConfigurationReadValue"), bad, unauthorized, forbidden, not_found,
-                *BODY_ERRORS, unavailable, "504", **token, parameters=params + [cfg_param],
+    write = oa.op(f"set{title}Configuration", "Configuration", "Set one ROS 2 parameter; answers the value as the "
+                "node now reports it", oa.ok("ConfigurationReadValue"), bad, unauthorized, forbidden, not_found,
+                *oa.BODY_ERRORS, unavailable, "504", **token, parameters=params + [cfg_param],
                 requestBody={"required": True, "content": {"application/json": {
-                    "schema": ref("ConfigurationWriteValue")}}})
-    reset_one = op(f"delete{title}Configuration", "Configuration", "Reset one parameter to its default. "
+                    "schema": oa.ref("ConfigurationWriteValue")}}})
+    reset_one = oa.op(f"delete{title}Configuration", "Configuration", "Reset one parameter to its default. "
                     + RESET_MEANS, None, bad, unauthorized, forbidden, not_found, unavailable, "504", **token,
                     parameters=params + [cfg_param])
     reset_one["responses"] = {"204": {"description": "Reset"}, **reset_one["responses"]}
-    reset_all = op(f"deleteAll{title}Configurations", "Configuration", "Reset every parameter of the entity's "
-                    "nodes to its default. " + RESET_MEANS, None, unauthorized, forbidden, ("404", ERRORS["404"]),
+    reset_all = oa.op(f"deleteAll{title}Configurations", "Configuration", "Reset every parameter of the entity's "
+                    "nodes to its default. " + RESET_MEANS, None, unauthorized, forbidden, ("404", oa.ERRORS["404"]),
                     "503", "504", **token, parameters=params)
     reset_all["responses"] = {"204": {"description": "All reset"},
-                              "207": ok("ConfigurationDeleteMultiStatus", "Some parameters were not reset: "
+                              "207": oa.ok("ConfigurationDeleteMultiStatus", "Some parameters were not reset: "
                                          "each node's entry names them and the node's reason"),
                               **reset_all["responses"]}
     return {
         base: {
-            "get": op(f"list{title}Configurations", "Configuration", f"The ROS 2 parameters of a "
+            "get": oa.op(f"list{title}Configurations", "Configuration", f"The ROS 2 parameters of a "
                        f"{collection[:-1]}'s nodes; a node that does not answer makes the list partial",
-                       ok("ConfigurationMetaDataList"), "400", "404", unavailable, "504", parameters=params),
+                       oa.ok("ConfigurationMetaDataList"), "400", "404", unavailable, "504", parameters=params),
             "delete": reset_all,
         },
         base + "/{config_id}": {
-            "get": op(f"get{title}Configuration", "Configuration", "One parameter: value, type, description, "
-                       "read-only, ranges", ok("ConfigurationReadValue"), bad, not_found, unavailable, "504",
+            "get": oa.op(f"get{title}Configuration", "Configuration", "One parameter: value, type, description, "
+                       "read-only, ranges", oa.ok("ConfigurationReadValue"), bad, not_found, unavailable, "504",
                        parameters=params + [cfg_param]),
             "put": write,
             "delete": reset_one,
@@ -102,6 +89,6 @@ def _configuration_paths(collection: str) -> dict[str, Any]:
     }
 
 
-SPEC = Spec(paths=lambda: {k: v for c in RESOURCE_COLLECTIONS for k, v in _configuration_paths(c).items()},
+SPEC = oa.Spec(paths=lambda: {k: v for c in oa.RESOURCE_COLLECTIONS for k, v in _configuration_paths(c).items()},
             schemas=SCHEMAS, tags=({"name": "Configuration", "description": "ROS 2 parameters of the nodes "
                                                                            "(configurations)"},))

@@ -5,79 +5,67 @@ from __future__ import annotations
 from typing import Any
 
 from ..core.entities import PARAM_NAMES
-from ..openapi.build import (
-    INT,
-    RESOURCE_COLLECTIONS,
-    STR,
-    STR_LIST,
-    Spec,
-    id_param,
-    obj,
-    ok,
-    op,
-    ref,
-    schema_name,
-    with_status,
-)
+from ..openapi import build as oa
 
 FAULT_STATUS = {"enum": ["PREFAILED", "CONFIRMED", "PREPASSED", "HEALED", "CLEARED"]}
 SCHEMAS: dict[str, Any] = {
-    "FaultListItem": obj(
+    "FaultListItem": oa.obj(
         ["fault_code", "severity", "severity_label", "description", "first_occurred", "last_occurred",
          "occurrence_count", "status", "reporting_sources"],
-        fault_code={**STR, "maxLength": 256, "description": "the status name, upper-cased, each run of "
+        fault_code={**oa.STR, "maxLength": 256, "description": "the status name, upper-cased, each run of "
                                                              "non-alphanumerics `_` (or `fault_codes`)"},
-        severity={**INT, "minimum": 0, "maximum": 3, "description": "0 INFO, 1 WARN, 2 ERROR, 3 CRITICAL"},
-        severity_label={"enum": ["INFO", "WARN", "ERROR", "CRITICAL"]}, description=STR,
+        severity={**oa.INT, "minimum": 0, "maximum": 3, "description": "0 INFO, 1 WARN, 2 ERROR, 3 CRITICAL"},
+        severity_label={"enum": ["INFO", "WARN", "ERROR", "CRITICAL"]}, description=oa.STR,
         first_occurred={"type": "number", "description": "Unix time, seconds"},
         last_occurred={"type": "number", "description": "Unix time, seconds"},
         last_passed={"type": "number", "description": "Unix time, seconds; once the status passed"},
-        occurrence_count={**INT, "minimum": 1, "description": "episodes: a new failure after passing counts one"},
+        occurrence_count={**oa.INT, "minimum": 1, "description": "episodes: a new failure after passing counts one"},
         status=FAULT_STATUS,
-        reporting_sources={**STR_LIST, "description": "the nodes that reported it (fully qualified)"}),
-    "FaultList": obj(
-        ["items", "x-medkit"], items={"type": "array", "items": ref("FaultListItem")},
-        X_medkit={**obj(["count"], count=INT, muted_count=INT, cluster_count=INT, entity_id=STR, source_id=STR,
+        reporting_sources={**oa.STR_LIST, "description": "the nodes that reported it (fully qualified)"}),
+    "FaultList": oa.obj(
+        ["items", "x-medkit"], items={"type": "array", "items": oa.ref("FaultListItem")},
+        X_medkit={**oa.obj(["count"], count=oa.INT, muted_count=oa.INT, cluster_count=oa.INT,
+                           entity_id=oa.STR, source_id=oa.STR,
                          aggregation_level={"enum": ["component", "function"]},
                          aggregated={"type": "boolean", "description": "true on a component's or function's"},
-                         app_count=INT, host_count=INT, aggregation_sources=STR_LIST),
+                         app_count=oa.INT, host_count=oa.INT, aggregation_sources=oa.STR_LIST),
                   "description": "entity_id on an entity's list; source_id on an app's; aggregation_* on a "
                                  "component's or function's"}),
-    "FaultDetail": obj(
+    "FaultDetail": oa.obj(
         ["item", "environment_data", "x-medkit"],
-        item=obj(["code", "severity", "status"], code=STR, fault_name=STR,
-                  severity={**INT, "minimum": 0, "maximum": 3},
-                  status=obj(["aggregatedStatus", "testFailed", "confirmedDTC", "pendingDTC"],
+        item=oa.obj(["code", "severity", "status"], code=oa.STR, fault_name=oa.STR,
+                  severity={**oa.INT, "minimum": 0, "maximum": 3},
+                  status=oa.obj(["aggregatedStatus", "testFailed", "confirmedDTC", "pendingDTC"],
                               aggregatedStatus={"enum": ["active", "passive", "cleared"]},
                               testFailed={"enum": ["0", "1"]}, confirmedDTC={"enum": ["0", "1"]},
                               pendingDTC={"enum": ["0", "1"]})),
-        environment_data=obj(
+        environment_data=oa.obj(
             ["extended_data_records", "snapshots"],
-            extended_data_records=obj(["first_occurrence", "last_occurrence"],
-                                       first_occurrence={**STR, "format": "date-time"},
-                                       last_occurrence={**STR, "format": "date-time"}),
-            snapshots={"type": "array", "maxItems": 8, "items": obj(
-                ["type", "name", "data", "x-medkit"], type={"const": "freeze_frame"}, name=STR,
+            extended_data_records=oa.obj(["first_occurrence", "last_occurrence"],
+                                       first_occurrence={**oa.STR, "format": "date-time"},
+                                       last_occurrence={**oa.STR, "format": "date-time"}),
+            snapshots={"type": "array", "maxItems": 8, "items": oa.obj(
+                ["type", "name", "data", "x-medkit"], type={"const": "freeze_frame"}, name=oa.STR,
                 data={"description": "the status's values (name: value), or a topic's message (its primary "
                                      "field for the common std_msgs/sensor_msgs types)"},
-                X_medkit=obj(["topic", "message_type"], topic=STR, message_type=STR, full_data={},
-                              captured_at={**STR, "format": "date-time"}, parse_error=STR,
-                              truncated_bytes=INT, error=STR))}),
-        X_medkit=obj(["occurrence_count", "severity_label", "status_raw"], occurrence_count=INT,
-                      reporting_sources=STR_LIST, severity_label={"enum": ["INFO", "WARN", "ERROR", "CRITICAL"]},
+                X_medkit=oa.obj(["topic", "message_type"], topic=oa.STR, message_type=oa.STR, full_data={},
+                              captured_at={**oa.STR, "format": "date-time"}, parse_error=oa.STR,
+                              truncated_bytes=oa.INT, error=oa.STR))}),
+        X_medkit=oa.obj(["occurrence_count", "severity_label", "status_raw"], occurrence_count=oa.INT,
+                      reporting_sources=oa.STR_LIST, severity_label={"enum": ["INFO", "WARN", "ERROR", "CRITICAL"]},
                       status_raw=FAULT_STATUS)),
 }
 HEALTH_SCHEMA = {
-    **obj(["active", "confirmed", "store_size", "max_faults", "last_write_error"],
-           active=INT, confirmed=INT, store_size=INT, max_faults=INT, refused=INT,
-           active_by_severity={"type": "object", "additionalProperties": INT},
-           store_enabled={"type": "boolean"}, store_writes=INT, store_write_errors=INT, store_pending=INT,
-           last_write_error=STR, moved_aside={**STR, "description": "where a corrupt store was moved at start"},
-           diagnostics_arrays=INT,
-           left_by_absent_nodes={**INT, "description": "active faults loaded from the store at start whose "
+    **oa.obj(["active", "confirmed", "store_size", "max_faults", "last_write_error"],
+           active=oa.INT, confirmed=oa.INT, store_size=oa.INT, max_faults=oa.INT, refused=oa.INT,
+           active_by_severity={"type": "object", "additionalProperties": oa.INT},
+           store_enabled={"type": "boolean"}, store_writes=oa.INT, store_write_errors=oa.INT, store_pending=oa.INT,
+           last_write_error=oa.STR, moved_aside={**oa.STR, "description": "where a corrupt store was moved at start"},
+           diagnostics_arrays=oa.INT,
+           left_by_absent_nodes={**oa.INT, "description": "active faults loaded from the store at start whose "
                                  "reporting nodes are not on the graph (an earlier run's, another robot's, or "
                                  "their nodes died): nobody reports them again"},
-           absent_nodes={**STR_LIST, "description": "the reporting nodes of those faults (at most 16)"}),
+           absent_nodes={**oa.STR_LIST, "description": "the reporting nodes of those faults (at most 16)"}),
     "description": "the fault manager (rosworker/faults/manager.py) and its SQLite store; zeros before the ROS worker "
                    "first answers"}
 _FAULT_QUERY = {"name": "status", "in": "query", "required": False,
@@ -102,9 +90,9 @@ def _fault_errors(*statuses: str) -> list[tuple[str, str]]:
 
 
 def _fault_clear(op_id: str, summary: str, *errors: Any, params: list[dict[str, Any]]) -> dict[str, Any]:
-    operation = op(op_id, "Faults", summary, None, *errors, "503", "504", security=[{"bearerAuth": []}, {}],
+    operation = oa.op(op_id, "Faults", summary, None, *errors, "503", "504", security=[{"bearerAuth": []}, {}],
                    parameters=params)
-    return with_status(operation, "204", {"description": "Cleared (or nothing to clear)"})
+    return oa.with_status(operation, "204", {"description": "Cleared (or nothing to clear)"})
 
 
 def _fault_paths(collection: str | None) -> dict[str, Any]:
@@ -113,37 +101,37 @@ def _fault_paths(collection: str | None) -> dict[str, Any]:
         stream = {"description": "text/event-stream: `id: <n>`, `event: fault_confirmed | fault_updated | "
                                  "fault_cleared`, `data: {\"event_type\", \"fault\" (a FaultListItem), "
                                  "\"timestamp\"}`; `:` keep-alives. `Last-Event-ID` replays what was missed",
-                  "content": {"text/event-stream": {"schema": STR}}}
+                  "content": {"text/event-stream": {"schema": oa.STR}}}
         full = ("503", "At max_fault_streams open streams of this HTTP worker (`service-unavailable`, `Maximum "
                        "number of SSE clients reached`); retry after `Retry-After` seconds")
         return {
             "/faults": {
-                "get": op("listAllFaults", "Faults", "Every fault of the robot (its /diagnostics)",
-                           ok("FaultList"), *_fault_errors("400"), "503", "504", parameters=[_FAULT_QUERY]),
+                "get": oa.op("listAllFaults", "Faults", "Every fault of the robot (its /diagnostics)",
+                           oa.ok("FaultList"), *_fault_errors("400"), "503", "504", parameters=[_FAULT_QUERY]),
                 "delete": _fault_clear("clearAllFaults", "Clear every fault with the `status` asked (a write: "
                                        "allow_fault_clear and the token)", *_fault_errors("400", "401", "403"),
                                        params=[_FAULT_QUERY]),
             },
-            "/faults/stream": {"get": op("streamFaults", "Faults", "Fault events as they happen (SSE)", stream,
+            "/faults/stream": {"get": oa.op("streamFaults", "Faults", "Fault events as they happen (SSE)", stream,
                                           full, parameters=[{"name": "Last-Event-ID", "in": "header",
-                                                             "required": False, "schema": STR}])},
+                                                             "required": False, "schema": oa.STR}])},
         }
-    title = schema_name(collection)
+    title = oa.schema_name(collection)
     base = f"/{collection}/{{{PARAM_NAMES[collection]}}}/faults"
-    params = [id_param(collection)]
-    code = {"name": "fault_code", "in": "path", "required": True, "schema": {**STR, "maxLength": 256}}
+    params = [oa.id_param(collection)]
+    code = {"name": "fault_code", "in": "path", "required": True, "schema": {**oa.STR, "maxLength": 256}}
     return {
         base: {
-            "get": op(f"list{title}Faults", "Faults", f"The faults every source of which is one of the "
-                       f"{collection[:-1]}'s nodes", ok("FaultList"), *_fault_errors("400", "404"), "503",
+            "get": oa.op(f"list{title}Faults", "Faults", f"The faults every source of which is one of the "
+                       f"{collection[:-1]}'s nodes", oa.ok("FaultList"), *_fault_errors("400", "404"), "503",
                        "504", parameters=params + [_FAULT_QUERY]),
             "delete": _fault_clear(f"clearAll{title}Faults", f"Clear the {collection[:-1]}'s faults with the "
                                    "`status` asked", *_fault_errors("400", "401", "403", "404"),
                                    params=params + [_FAULT_QUERY]),
         },
         base + "/{fault_code}": {
-            "get": op(f"get{title}Fault", "Faults", "One fault: SOVD status bits, first and last occurrence, "
-                       "freeze frames", ok("FaultDetail"), *_fault_errors("400", "404"), "503", "504",
+            "get": oa.op(f"get{title}Fault", "Faults", "One fault: SOVD status bits, first and last occurrence, "
+                       "freeze frames", oa.ok("FaultDetail"), *_fault_errors("400", "404"), "503", "504",
                        parameters=params + [code]),
             "delete": _fault_clear(f"clear{title}Fault", "Clear one fault (it is CLEARED until it fails again)",
                                    *_fault_errors("400", "401", "403", "404"), params=params + [code]),
@@ -151,5 +139,5 @@ def _fault_paths(collection: str | None) -> dict[str, Any]:
     }
 
 
-SPEC = Spec(paths=lambda: {k: v for c in (None, *RESOURCE_COLLECTIONS) for k, v in _fault_paths(c).items()},
+SPEC = oa.Spec(paths=lambda: {k: v for c in (None, *oa.RESOURCE_COLLECTIONS) for k, v in _fault_paths(c).items()},
             schemas=SCHEMAS, tags=({"name": "Faults", "description": "The robot's /diagnostics as SOVD faults"},))
