@@ -29,6 +29,7 @@ from ..core.common import config, json_response, lookup, node_names
 from ..core.entities import API_BASE, PARAM_NAMES, Entity
 from ..core.errors import ApiError
 from ..core.roscall import ros_call
+from ..sse import hub as sse
 from ..sse.stream import rfc3339
 from . import hub
 
@@ -192,8 +193,7 @@ def stream():
                        {"max_fault_streams": cfg.max_fault_streams}, headers={"Retry-After": "5"})
     raw = request.headers.get("Last-Event-ID", "").strip()
     last_id = int(raw) if raw.isdigit() and len(raw) <= 18 else 0
-    return current_app.response_class(hub.body(last_id, request.environ), mimetype="text/event-stream",
-                                      headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+    return sse.response(hub.body(last_id, request.environ))
 
 
 # ---- an entity's faults ---------------------------------------------------------------------------------

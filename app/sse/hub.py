@@ -208,3 +208,10 @@ def response_body(name: str, make: Callable[[Hub, Any, bool], Iterator[bytes]],
         yield from make(per_process.get(), sock, framed)
 
     return body()
+
+
+def response(body: Iterator[bytes]) -> Any:
+    """A stream's response: ``body`` (a family's ``hub.body``) as ``text/event-stream``, never cached,
+    never buffered by a proxy (nginx's ``X-Accel-Buffering``)."""
+    return current_app.response_class(body, mimetype="text/event-stream",
+                                      headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})

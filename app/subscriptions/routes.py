@@ -8,12 +8,11 @@ another.  The stream itself is ``app/subscriptions/hub.py``.
 
 from __future__ import annotations
 
-import re
 from datetime import UTC, datetime
 from typing import Any
 from urllib.parse import unquote
 
-from flask import Blueprint, current_app, request
+from flask import Blueprint, request
 
 from ipc.events import INTERVALS
 
@@ -22,14 +21,15 @@ from ..core.bodies import json_object
 from ..core.common import config, json_response, lookup
 from ..core.entities import API_BASE
 from ..core.errors import ApiError
+from ..core.records import Records, created
 from ..core.resources import bad, client, parse_resource, streamables, vendor
-from ..core.roscall import ros_call
+from ..sse import hub as sse
 from . import hub
 
 bp = Blueprint("subscriptions", __name__, url_prefix=API_BASE)
 
 ENTITY = "/<any(apps, components, functions):collection>/<entity_id>"
-_SUB_ID = re.compile(r"^sub_[0-9a-f]{16}$")
+SUBSCRIPTIONS = Records("sub", "Subscription", "subscription_id", "no-such-subscription")
 
 
 def _body() -> dict[str, Any]:
@@ -75,16 +75,6 @@ def public(sub: dict[str, Any]) -> dict[str, Any]:
             "expires_at": expires.strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"}
 
 
-def _call(cmd: str, args: dict[str, Any], sub_id: str | None = None) -> dict[str, Any]:
-    return ros_call(cmd, args, not_found={"no-such-subscription": ("Subscription not found",
-                                                                   {"subscription_id": (sub_id or "")[:100]})})
-
-
-def _known(sub_id: str) -> None:
-    if not _SUB_ID.match(sub_id):
-        raise ApiError(404, "resource-not-found", "Subscription not found", {"subscription_id": sub_id[:100]})
-
-
 @bp.post(ENTITY + "/cyclic-subscriptions")
 def create(collection: str, entity_id: str):
     authorize_change()
@@ -103,26 +93,19 @@ def create(collection: str, entity_id: str):
         raise vendor("x-medkit-collection-not-supported", f"Collection '{what}' not supported for {collection}",
                      {"collection": what, "entity_type": collection})
     target = streamable.resolve(resource, entity)   # a topic and bytes mode, or a kind and its target
-    sub = _call("sub_create", {"collection": collection, "entity_id": entity.id, "resource": body["resource"],
-                               "bytes": "array", **target, "interval": interval, "duration": duration,
-                               "client": client()})
-    answer = public(sub)
-    return json_response(answer, 201, headers={"Location": answer["event_source"].removesuffix("/events")})
+    return created(public(SUBSCRIPTIONS.call("create", {
+        "collection": collection, "entity_id": entity.id, "resource": body["resource"], "bytes": "array",
+        **target, "interval": interval, "duration": duration, "client": client()})))
 
 
 @bp.get(ENTITY + "/cyclic-subscriptions")
 def listing(collection: str, entity_id: str):
-    entity = lookup(collection, entity_id)
-    items = _call("sub_list", {"collection": collection, "entity_id": entity.id}).get("items") or []
-    return json_response({"items": [public(s) for s in items]})
+    return json_response({"items": [public(s) for s in SUBSCRIPTIONS.listing(collection, entity_id)]})
 
 
 @bp.get(ENTITY + "/cyclic-subscriptions/<sub_id>")
 def detail(collection: str, entity_id: str, sub_id: str):
-    entity = lookup(collection, entity_id)
-    _known(sub_id)
-    return json_response(public(_call("sub_get", {"collection": collection, "entity_id": entity.id,
-                                                  "id": sub_id}, sub_id)))
+    return json_response(public(SUBSCRIPTIONS.get(collection, entity_id, sub_id)))
 
 
 @bp.put(ENTITY + "/cyclic-subscriptions/<sub_id>")
@@ -132,26 +115,15 @@ def update(collection: str, entity_id: str, sub_id: str):
     body = _body()
     interval = _interval(body, required=False)
     duration = _duration(body, required=False)
-    _known(sub_id)
-    sub = _call("sub_update", {"collection": collection, "entity_id": entity.id, "id": sub_id,
-                               "interval": interval, "duration": duration}, sub_id)
-    return json_response(public(sub))
+    return json_response(public(SUBSCRIPTIONS.of("update", collection, entity, sub_id, interval=interval,
+                                                 duration=duration)))
 
 
 @bp.delete(ENTITY + "/cyclic-subscriptions/<sub_id>")
 def delete(collection: str, entity_id: str, sub_id: str):
-    authorize_change()
-    entity = lookup(collection, entity_id)
-    _known(sub_id)
-    _call("sub_delete", {"collection": collection, "entity_id": entity.id, "id": sub_id}, sub_id)
-    return current_app.response_class(status=204)
+    return SUBSCRIPTIONS.delete(collection, entity_id, sub_id)
 
 
 @bp.get(ENTITY + "/cyclic-subscriptions/<sub_id>/events")
 def events(collection: str, entity_id: str, sub_id: str):
-    entity = lookup(collection, entity_id)
-    _known(sub_id)
-    sub = _call("sub_get", {"collection": collection, "entity_id": entity.id, "id": sub_id}, sub_id)
-    return current_app.response_class(
-        hub.body(sub, request.environ), mimetype="text/event-stream",
-        headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+    return sse.response(hub.body(SUBSCRIPTIONS.get(collection, entity_id, sub_id), request.environ))

@@ -19,10 +19,9 @@ from __future__ import annotations
 
 import json
 import math
-import re
 from typing import Any
 
-from flask import Blueprint, current_app, request
+from flask import Blueprint, request
 
 from ipc import jsonpointer
 
@@ -31,8 +30,9 @@ from ..core.bodies import json_object
 from ..core.common import json_response, lookup
 from ..core.entities import API_BASE
 from ..core.errors import ApiError
+from ..core.records import Records, created
 from ..core.resources import Observable, Resource, client, observables, parse_resource
-from ..core.roscall import ros_call
+from ..sse import hub as sse
 from . import hub
 
 bp = Blueprint("triggers", __name__, url_prefix=API_BASE)
@@ -41,8 +41,8 @@ ENTITY = "/<any(apps, components, functions):collection>/<entity_id>"
 CONDITIONS = ("OnChange", "OnChangeTo", "EnterRange", "LeaveRange")
 MAX_LIFETIME = 2**31 - 1
 TARGET_VALUE_MAX = 4096  # bytes of the JSON of an OnChangeTo target_value (rosworker/triggers/registry.py checks it too)
-_TRIGGER_ID = re.compile(r"^trig_[0-9a-f]{16}$")
 MEDKIT_COLLECTIONS = ("data", "faults", "operations", "updates", "logs")
+TRIGGERS = Records("trig", "Trigger", "trigger_id", "no-such-trigger")
 
 
 def _bad(message: str, parameter: str, value: Any = None) -> ApiError:
@@ -148,15 +148,6 @@ def public(trigger: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _call(cmd: str, args: dict[str, Any], trigger_id: str | None = None) -> dict[str, Any]:
-    return ros_call(cmd, args, not_found={"no-such-trigger": ("Trigger not found", {"trigger_id": (trigger_id or "")[:100]})})
-
-
-def _known(trigger_id: str) -> None:
-    if not _TRIGGER_ID.match(trigger_id):
-        raise ApiError(404, "resource-not-found", "Trigger not found", {"trigger_id": trigger_id[:100]})
-
-
 @bp.post(ENTITY + "/triggers")
 def create(collection: str, entity_id: str):
     authorize_change()
@@ -177,23 +168,17 @@ def create(collection: str, entity_id: str):
             "target": target, "bytes": mode, "path": path, "condition": condition,
             "multishot": _flag(body, "multishot"), "persistent": _flag(body, "persistent"),
             "lifetime": _lifetime(body, required=False), "client": client()}
-    answer = public(_call("trig_create", args))
-    return json_response(answer, 201, headers={"Location": answer["event_source"].removesuffix("/events")})
+    return created(public(TRIGGERS.call("create", args)))
 
 
 @bp.get(ENTITY + "/triggers")
 def listing(collection: str, entity_id: str):
-    entity = lookup(collection, entity_id)
-    items = _call("trig_list", {"collection": collection, "entity_id": entity.id}).get("items") or []
-    return json_response({"items": [public(t) for t in items]})
+    return json_response({"items": [public(t) for t in TRIGGERS.listing(collection, entity_id)]})
 
 
 @bp.get(ENTITY + "/triggers/<trigger_id>")
 def detail(collection: str, entity_id: str, trigger_id: str):
-    entity = lookup(collection, entity_id)
-    _known(trigger_id)
-    return json_response(public(_call("trig_get", {"collection": collection, "entity_id": entity.id,
-                                                   "id": trigger_id}, trigger_id)))
+    return json_response(public(TRIGGERS.get(collection, entity_id, trigger_id)))
 
 
 @bp.put(ENTITY + "/triggers/<trigger_id>")
@@ -202,27 +187,17 @@ def update(collection: str, entity_id: str, trigger_id: str):
     entity = lookup(collection, entity_id)
     body = json_object('{"lifetime"}')
     lifetime = _lifetime(body, required=True)
-    _known(trigger_id)
-    return json_response(public(_call("trig_update", {"collection": collection, "entity_id": entity.id,
-                                                      "id": trigger_id, "lifetime": lifetime}, trigger_id)))
+    return json_response(public(TRIGGERS.of("update", collection, entity, trigger_id, lifetime=lifetime)))
 
 
 @bp.delete(ENTITY + "/triggers/<trigger_id>")
 def delete(collection: str, entity_id: str, trigger_id: str):
-    authorize_change()
-    entity = lookup(collection, entity_id)
-    _known(trigger_id)
-    _call("trig_delete", {"collection": collection, "entity_id": entity.id, "id": trigger_id}, trigger_id)
-    return current_app.response_class(status=204)
+    return TRIGGERS.delete(collection, entity_id, trigger_id)
 
 
 @bp.get(ENTITY + "/triggers/<trigger_id>/events")
 def events(collection: str, entity_id: str, trigger_id: str):
-    entity = lookup(collection, entity_id)
-    _known(trigger_id)
-    trigger = _call("trig_get", {"collection": collection, "entity_id": entity.id, "id": trigger_id}, trigger_id)
+    trigger = TRIGGERS.get(collection, entity_id, trigger_id)
     if trigger["status"] != "active" and not trigger.get("replayable"):
         raise ApiError(404, "resource-not-found", "Trigger expired or inactive", {"trigger_id": trigger_id})
-    return current_app.response_class(
-        hub.body(trigger, request.environ), mimetype="text/event-stream",
-        headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+    return sse.response(hub.body(trigger, request.environ))
