@@ -7,6 +7,8 @@ import re
 import subprocess
 import sys
 
+import pytest
+
 from tests.support.procs import REPO
 
 # Outside the gateway proper: the demo robot, the ROS nodes of the tests (tests/support/) and of
@@ -89,6 +91,68 @@ def test_each_package_imports_only_the_packages_below_it():
             if wrong:
                 offenders.append(f"{path.relative_to(REPO)} imports {sorted(wrong)}")
     assert not offenders, "imports against the layout:\n" + "\n".join(offenders)
+
+
+# A family (the same name in each process: app/faults/ beside rosworker/faults/) plugs in through its
+# FAMILY (app/core/family.py, rosworker/core/family.py).  It imports no other family (it reaches their
+# resources through the registries of core/), and what is shared (core/ and the like, and the process's
+# top modules: wsgi.py, main.py) imports no family: it finds them (discover()) and knows none by name.
+SHARED = {"app": {"core", "sse", "openapi", "ui"}, "rosworker": {"core", "ros"}}
+
+
+def imported_modules(path, package: str) -> set[str]:
+    """The dotted names ``path`` (a module of ``package``) imports, relative imports resolved."""
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level == 0:
+                base = node.module or ""
+            else:
+                parts = package.split(".")
+                base = ".".join(parts[:len(parts) - node.level + 1] + ([node.module] if node.module else []))
+            names.add(base)
+            names.update(f"{base}.{alias.name}" for alias in node.names)  # "from .. import faults"
+    return names
+
+
+def family_imports(root, top: str) -> list[str]:
+    """Imports against the family rules in ``root/top`` (``app`` or ``rosworker``)."""
+    shared = SHARED[top]
+    offenders = []
+    for path in (p for p in (root / top).rglob("*.py") if "__pycache__" not in p.parts):
+        rel = path.relative_to(root)
+        package = ".".join(rel.parts[:-1])   # a module's package; an __init__.py's own
+        own = rel.parts[1] if len(rel.parts) > 2 else None    # the folder it is in (None: a top module)
+        for name in imported_modules(path, package):
+            parts = name.split(".")
+            if len(parts) < 2 or parts[0] != top or not (root / top / parts[1] / "__init__.py").exists():
+                continue
+            target = parts[1]
+            if target in shared or target == own:
+                continue
+            who = "shared code" if own is None or own in shared else f"family {own}"
+            offenders.append(f"{rel}: {who} imports family {target} ({name})")
+    return offenders
+
+
+@pytest.mark.parametrize("top", sorted(SHARED))
+def test_no_family_imports_another_and_the_shared_code_imports_none(top):
+    offenders = family_imports(REPO, top)
+    assert not offenders, "imports against the family rules:\n" + "\n".join(offenders)
+
+
+def test_the_family_gate_catches_an_offender(tmp_path):
+    for folder, text in (("core", ""), ("faults", ""), ("logs", "from ..faults import store\n"),
+                         ("data", "def f():\n    from app.logs import book\n"),
+                         ("core/inner", "from ... import faults\n")):
+        (tmp_path / "app" / folder).mkdir(parents=True, exist_ok=True)
+        (tmp_path / "app" / folder / "__init__.py").write_text(text)
+    (tmp_path / "app" / "wsgi.py").write_text("from .data import routes\nfrom .core import family\n")
+    found = family_imports(tmp_path, "app")
+    assert sorted({line.split(": ")[0] for line in found}) == [
+        "app/core/inner/__init__.py", "app/data/__init__.py", "app/logs/__init__.py", "app/wsgi.py"], found
 
 
 # The bench runs from tests/ (tests/reliability/test_bench_smoke.py), not the other way round: a test
