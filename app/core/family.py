@@ -24,14 +24,13 @@ their resources through ``core/resources.py``.
 
 from __future__ import annotations
 
-import importlib
-import pkgutil
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
 from flask import Blueprint, Flask
 
+from common import families
 from ipc import counters
 
 NOT_FAMILIES = ("core", "sse", "openapi", "ui")
@@ -83,16 +82,8 @@ class Family:
 
 
 def discover(package: str = "app") -> tuple[Family, ...]:
-    """Every family of ``package``, in name order."""
-    root = importlib.import_module(package)
-    found = []
-    for info in sorted(pkgutil.iter_modules(root.__path__), key=lambda i: i.name):
-        if not info.ispkg or info.name in NOT_FAMILIES:
-            continue
-        family = getattr(importlib.import_module(f"{package}.{info.name}"), "FAMILY", None)
-        if isinstance(family, Family):
-            found.append(family)
-    return tuple(found)
+    """Every family of ``package``, in name order (``common/families.py``)."""
+    return families.discover(package, Family, NOT_FAMILIES)
 
 
 def plug(app: Flask, families: tuple[Family, ...]) -> None:

@@ -33,16 +33,15 @@ server refuses others) and its message in ``ipc/PROTOCOL.md``.
 
 from __future__ import annotations
 
-import importlib
 import logging
 import os
-import pkgutil
 import time
 from collections.abc import Callable
 from typing import Any
 
 import zmq
 
+from common import families
 from common import settings as config
 
 from . import args
@@ -80,16 +79,8 @@ class Family:
 
 
 def discover(package: str = "rosworker") -> tuple[Family, ...]:
-    """Every family of ``package``, in name order."""
-    root = importlib.import_module(package)
-    found = []
-    for info in sorted(pkgutil.iter_modules(root.__path__), key=lambda i: i.name):
-        if not info.ispkg or info.name in NOT_FAMILIES:
-            continue
-        family = getattr(importlib.import_module(f"{package}.{info.name}"), "FAMILY", None)
-        if isinstance(family, Family):
-            found.append(family)
-    return tuple(found)
+    """Every family of ``package``, in name order (``common/families.py``)."""
+    return families.discover(package, Family, NOT_FAMILIES)
 
 
 class Core:
