@@ -20,11 +20,10 @@ from flask import Flask
 from ipc.errors import IpcError
 
 from ..core import resources
-from ..core.common import member_nodes
 from ..core.entities import Entity
 from ..core.errors import IPC_ANSWERS, ApiError
 from ..core.resources import Resource
-from .routes import WORKER_ERRORS, address, check_id, node_error, read_value, ros_param
+from .routes import WORKER_ERRORS, node_error, parameter_nodes, read_value, ros_param
 
 PARAMETER_PATH = "/api/v1/{apps|components|functions}/{id}/configurations/{param_id}"
 
@@ -34,11 +33,7 @@ def subscribed(resource: Resource, entity: Entity) -> dict[str, Any]:
     param_id = unquote(rest[1:]) if rest.startswith("/") else ""
     if not param_id or "/" in rest[1:]:
         raise resource.invalid(f"a parameter is streamed as {PARAMETER_PATH}")
-    check_id(param_id)
-    nodes = member_nodes(entity)
-    if not nodes:
-        raise ApiError(404, "resource-not-found", "No nodes available", {"entity_id": entity.id, "id": param_id})
-    app_id, name = address(entity, param_id)
+    nodes, app_id, name = parameter_nodes(entity, param_id)
     if app_id is not None:
         fqn = dict(nodes)[app_id]
         ros_param("param_get", {"node": fqn, "name": name}, "Failed to get parameter", entity.id, param_id)

@@ -177,14 +177,21 @@ def listing(collection: str, entity_id: str):
     return json_response({"items": items, "x-medkit": ext})
 
 
-@bp.get(ENTITY + "/<param_id>")
-def read(collection: str, entity_id: str, param_id: str):
-    entity = lookup(collection, entity_id)
+def parameter_nodes(entity: Entity, param_id: str) -> tuple[list[tuple[str, str]], str | None, str]:
+    """``(nodes, app_id, name)`` of one parameter id of ``entity``: its nodes (404 when it has none), and the
+    app and parameter name the id addresses (``app_id`` None: a bare name, looked up on each node)."""
     check_id(param_id)
     nodes = member_nodes(entity)
     if not nodes:
         raise ApiError(404, "resource-not-found", "No nodes available", {"entity_id": entity.id, "id": param_id})
     app_id, name = address(entity, param_id)
+    return nodes, app_id, name
+
+
+@bp.get(ENTITY + "/<param_id>")
+def read(collection: str, entity_id: str, param_id: str):
+    entity = lookup(collection, entity_id)
+    nodes, app_id, name = parameter_nodes(entity, param_id)
     if app_id is not None:
         fqn = dict(nodes)[app_id]
         parameter = ros_param("param_get", {"node": fqn, "name": name}, "Failed to get parameter",
