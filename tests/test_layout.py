@@ -155,6 +155,96 @@ def test_the_family_gate_catches_an_offender(tmp_path):
         "app/core/inner/__init__.py", "app/data/__init__.py", "app/logs/__init__.py", "app/wsgi.py"], found
 
 
+# No import cycles among the gateway's modules: what a module imports when it is loaded (function-level
+# imports and ``if TYPE_CHECKING:`` blocks run later or never, so they cannot close a cycle at load).
+def load_time_imports(path, module: str, known: set[str]) -> set[str]:
+    """The modules of ``known`` that loading ``path`` (``module``) imports."""
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    out: set[str] = set()
+
+    def visit(nodes) -> None:
+        for node in nodes:
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+                continue
+            if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+                visit(node.orelse)
+                continue
+            if isinstance(node, ast.Import):
+                out.update(alias.name for alias in node.names if alias.name in known)
+            elif isinstance(node, ast.ImportFrom):
+                if node.level == 0:
+                    base = node.module or ""
+                else:
+                    parts = package.split(".")
+                    base = ".".join(parts[:len(parts) - node.level + 1] + ([node.module] if node.module else []))
+                for alias in node.names:
+                    full = f"{base}.{alias.name}"
+                    out.add(full if full in known else base)
+            visit(ast.iter_child_nodes(node))
+
+    visit(ast.parse(path.read_text(), str(path)).body)
+    return (out & known) - {module}
+
+
+def import_cycles(root, tops) -> list[list[str]]:
+    """Every cycle (strongly connected set of two or more modules) of the load-time imports under ``tops``."""
+    files = {}
+    for top in tops:
+        for path in (p for p in (root / top).rglob("*.py") if "__pycache__" not in p.parts):
+            parts = list(path.relative_to(root).with_suffix("").parts)
+            files[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    graph = {module: load_time_imports(path, module, set(files)) for module, path in files.items()}
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    cycles = []
+    for start in sorted(graph):   # Tarjan's strongly connected components, without recursion
+        if start in index:
+            continue
+        work = [(start, iter(sorted(graph[start])))]
+        index[start] = low[start] = len(index)
+        stack.append(start)
+        while work:
+            node, children = work[-1]
+            child = next(children, None)
+            if child is not None:
+                if child not in index:
+                    index[child] = low[child] = len(index)
+                    stack.append(child)
+                    work.append((child, iter(sorted(graph[child]))))
+                elif child in stack:
+                    low[node] = min(low[node], index[child])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[node])
+            if low[node] == index[node]:
+                component = []
+                while True:
+                    member = stack.pop()
+                    component.append(member)
+                    if member == node:
+                        break
+                if len(component) > 1:
+                    cycles.append(sorted(component))
+    return cycles
+
+
+def test_no_import_cycles():
+    cycles = import_cycles(REPO, ("app", "rosworker", "ipc", "common", "supervisor"))
+    assert not cycles, "import cycles:\n" + "\n".join(" <-> ".join(c) for c in cycles)
+
+
+def test_the_cycle_gate_catches_a_cycle(tmp_path):
+    (tmp_path / "app" / "faults").mkdir(parents=True)
+    (tmp_path / "app" / "__init__.py").write_text("")
+    (tmp_path / "app" / "faults" / "__init__.py").write_text("from . import hub\n")
+    (tmp_path / "app" / "faults" / "hub.py").write_text("from .routes import x\ndef f():\n    from .. import wsgi\n")
+    (tmp_path / "app" / "faults" / "routes.py").write_text("import app.faults.hub\n")
+    (tmp_path / "app" / "wsgi.py").write_text("from .faults import hub\n")
+    assert import_cycles(tmp_path, ("app",)) == [["app.faults.hub", "app.faults.routes"]]
+
+
 # The bench runs from tests/ (tests/reliability/test_bench_smoke.py), not the other way round: a test
 # may move without breaking ``make bench``.  Its one link to tests/ is the process harness both
 # start the gateway with (a private ROS domain, processes with deadlines, the gateway as an
