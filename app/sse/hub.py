@@ -93,6 +93,27 @@ class Hub(channel.Subscriber):
         self.prom.streams_open.dec()
         self.removed(stream)
 
+    def watch(self, index: dict[Any, set[Stream]], name: Any, stream: Stream, key: bytes) -> None:
+        """``stream`` watches ``name`` of ``index`` (a kind's own: a key, a trigger id); the first
+        watcher of a name subscribes the channel to ``key``."""
+        watchers = index.get(name)
+        if watchers is None:
+            watchers = index[name] = set()
+            self.subscribe(key)
+        watchers.add(stream)
+
+    def unwatch(self, index: dict[Any, set[Stream]], name: Any, stream: Stream, key: bytes) -> bool:
+        """``stream`` no longer watches ``name``; the last one gone unsubscribes ``key`` (True then)."""
+        watchers = index.get(name)
+        if watchers is None:
+            return False
+        watchers.discard(stream)
+        if watchers:
+            return False
+        del index[name]
+        self.unsubscribe(key)
+        return True
+
     def end_all(self, last: Callable[[Stream], bytes | None]) -> None:
         for stream in list(self.streams):
             stream.end(last(stream))

@@ -105,21 +105,11 @@ class StreamHub(Hub):
         self._remove(stream)
 
     def _add(self, stream: Stream) -> None:
-        watchers = self.by_key.get(stream.key)
-        if watchers is None:
-            watchers = self.by_key[stream.key] = set()
-            self.subscribe(stream.key)
-        watchers.add(stream)
+        self.watch(self.by_key, stream.key, stream, stream.key)
 
     def _remove(self, stream: Stream) -> None:
-        watchers = self.by_key.get(stream.key)
-        if watchers is None:
-            return
-        watchers.discard(stream)
-        if not watchers:
-            del self.by_key[stream.key]
+        if self.unwatch(self.by_key, stream.key, stream, stream.key):
             self._last_payload = {k: v for k, v in self._last_payload.items() if k[0] != stream.key}
-            self.unsubscribe(stream.key)
 
     def last(self, stream: Stream) -> bytes | None:
         return self.error_frame(stream, SHUTDOWN)

@@ -78,20 +78,10 @@ class TriggerHub(Hub):
         return stream
 
     def added(self, stream: Stream) -> None:
-        streams = self.by_id.get(stream.id)
-        if streams is None:
-            streams = self.by_id[stream.id] = set()
-            self.subscribe(stream.key)
-        streams.add(stream)
+        self.watch(self.by_id, stream.id, stream, stream.key)
 
     def removed(self, stream: Stream) -> None:
-        streams = self.by_id.get(stream.id)
-        if streams is None:
-            return
-        streams.discard(stream)
-        if not streams:
-            del self.by_id[stream.id]
-            self.unsubscribe(stream.key)
+        self.unwatch(self.by_id, stream.id, stream, stream.key)
 
     def opening(self, stream: Stream) -> None:
         """Before the response head: the subscription confirmed, then what fired before it opened."""
