@@ -162,30 +162,29 @@ def test_collection_docs_is_the_subtree(client):
 
 def test_entity_docs_fill_in_the_entity(client):
     doc = client.get("/api/v1/components/test-robot/docs").get_json()
-    # In the document's order (the core's paths, then each family's): compared as a set here.
-    assert len(doc["paths"]) == len(set(doc["paths"]))
-    assert set(doc["paths"]) == {
-        "/components/test-robot", "/components/test-robot/data", "/components/test-robot/data/{data_id}",
-        "/components/test-robot/data-categories", "/components/test-robot/data-groups",
-        "/components/test-robot/subcomponents", "/components/test-robot/hosts",
-        "/components/test-robot/depends-on", "/components/test-robot/cyclic-subscriptions",
-        "/components/test-robot/cyclic-subscriptions/{subscription_id}",
-        "/components/test-robot/cyclic-subscriptions/{subscription_id}/events",
-        "/components/test-robot/docs", "/components/test-robot/data/docs",
-        # configurations: app/configurations/routes.py
+    # In the document's order: the core's first paths (the entity, its relations), then each family's in
+    # name order (app/<family>/spec.py), then the core's last ones (the scoped docs, medkit's 501s).
+    assert list(doc["paths"]) == [
+        "/components/test-robot", "/components/test-robot/subcomponents", "/components/test-robot/hosts",
+        "/components/test-robot/depends-on",
         "/components/test-robot/configurations", "/components/test-robot/configurations/{config_id}",
-        "/components/test-robot/triggers", "/components/test-robot/triggers/{trigger_id}",
-        "/components/test-robot/triggers/{trigger_id}/events",
-        # medkit's routes not served here (501), in the order of unimplemented.ROUTES
-        *dict.fromkeys(path.replace("{component_id}", "test-robot")
-                       for _, path, collection in unimplemented.paths() if collection == "components"),
-        "/components/test-robot/status",  # GET .../status (its transitions are in the table above: 501)
-        "/components/test-robot/logs", "/components/test-robot/logs/configuration",  # logs (issue 22)
-        # operations: services and actions
+        "/components/test-robot/data", "/components/test-robot/data/{data_id}",
+        "/components/test-robot/data-categories", "/components/test-robot/data-groups",
+        "/components/test-robot/faults", "/components/test-robot/faults/{fault_code}",
+        "/components/test-robot/logs", "/components/test-robot/logs/configuration",
         "/components/test-robot/operations", "/components/test-robot/operations/{operation_id}",
         "/components/test-robot/operations/{operation_id}/executions",
         "/components/test-robot/operations/{operation_id}/executions/{execution_id}",
-        "/components/test-robot/faults", "/components/test-robot/faults/{fault_code}"}  # faults (issue 22)
+        "/components/test-robot/status",  # GET .../status (its transitions are 501: below)
+        "/components/test-robot/cyclic-subscriptions",
+        "/components/test-robot/cyclic-subscriptions/{subscription_id}",
+        "/components/test-robot/cyclic-subscriptions/{subscription_id}/events",
+        "/components/test-robot/triggers", "/components/test-robot/triggers/{trigger_id}",
+        "/components/test-robot/triggers/{trigger_id}/events",
+        "/components/test-robot/docs", "/components/test-robot/data/docs",
+        # medkit's routes not served here (501), in the order of unimplemented.ROUTES
+        *dict.fromkeys(path.replace("{component_id}", "test-robot")
+                       for _, path, collection in unimplemented.paths() if collection == "components")]
     assert "/components/test-robot/locks/{lock_id}" in doc["paths"]
     get = doc["paths"]["/components/test-robot/hosts"]["get"]
     assert get["operationId"] == "listComponentHosts" and "parameters" not in get
