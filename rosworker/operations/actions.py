@@ -31,7 +31,7 @@ import functools
 import logging
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 from ipc.errors import IpcError
@@ -59,6 +59,19 @@ ROS_STATUS = {0: "unknown", 1: "accepted", 2: "executing", 3: "canceling", 4: "s
 TERMINAL = frozenset({"succeeded", "canceled", "aborted", "unknown-final"})
 SOVD_STATUS = {"accepted": "running", "executing": "running", "canceling": "running",
                "succeeded": "completed", "canceled": "failed", "aborted": "failed"}
+
+
+def answers(pending: dict[int, Any], take: Callable[[], tuple[int | None, Any]]) -> Iterator[tuple[Any, Any]]:
+    """``(what was kept for the request, its response)`` for each answer ``take()`` has for a request in
+    ``pending`` (by sequence number; popped), until none is left or every request is answered.
+    An answer to a request no longer pending (timed out) is dropped."""
+    while pending:
+        seq, response = take()
+        if seq is None:
+            return
+        kept = pending.pop(seq, None)
+        if kept is not None:
+            yield kept, response
 
 
 class Goal:
@@ -319,14 +332,8 @@ class ActionClients:
                 else:
                     still.append((task, request, goal, deadline, ready_by))
             pooled.waiting = still
-        while pooled.sends:
-            seq, response = handle.take_goal_response(impl.SendGoalService.Response)
-            if seq is None:
-                break
-            waiting = pooled.sends.pop(seq, None)
-            if waiting is None:
-                continue
-            task, goal, _ = waiting
+        for (task, goal, _), response in answers(
+                pooled.sends, lambda: handle.take_goal_response(impl.SendGoalService.Response)):
             if response.accepted:
                 pooled.goals[goal.id] = goal
                 self.goals[goal.id] = goal
@@ -339,14 +346,8 @@ class ActionClients:
                 self.stats.operation_goals_rejected += 1
                 task.fail(IpcError("action-rejected", "Goal rejected",
                                    {"action": pooled.path, "details": "The action server rejected the goal"}))
-        while pooled.cancels:
-            seq, response = handle.take_cancel_response(impl.CancelGoalService.Response)
-            if seq is None:
-                break
-            waiting = pooled.cancels.pop(seq, None)
-            if waiting is None:
-                continue
-            task, goal, _ = waiting
+        for (task, goal, _), response in answers(
+                pooled.cancels, lambda: handle.take_cancel_response(impl.CancelGoalService.Response)):
             code = int(response.return_code)
             if code == 0:
                 if goal.ros2_status in ("accepted", "executing"):
@@ -374,13 +375,8 @@ class ActionClients:
                     word = ROS_STATUS.get(int(item.status), "unknown")
                     if goal is not None and not goal.done and word in ("accepted", "executing", "canceling"):
                         goal.ros2_status = word
-        while pooled.results:
-            seq, response = handle.take_result_response(impl.GetResultService.Response)
-            if seq is None:
-                break
-            goal = pooled.results.pop(seq, None)
-            if goal is None:
-                continue
+        for goal, response in answers(
+                pooled.results, lambda: handle.take_result_response(impl.GetResultService.Response)):
             goal.result = to_plain(response.result)
             goal.finish(ROS_STATUS.get(int(response.status), "unknown"),
                         None if int(response.status) in (4, 5, 6) else "The action server answered the result "
