@@ -23,6 +23,8 @@ holds no defaults of its own: it maps the gateway's settings onto gunicorn's.
 - Proxy headers (``X-Forwarded-*``) are trusted only from ``forwarded_allow_ips``.
 - The access log is off unless ``access_log`` is set; then its lines are
   rate-limited by :class:`app.core.accesslog.AccessLogger` and carry the request id.
+- TLS: ``tls_cert`` and ``tls_key`` are gunicorn's ``certfile`` and ``keyfile``; :func:`ssl_context`
+  refuses anything older than ``tls_min_version`` (TLS 1.2 by default).
 - Prometheus: the supervisor sets ``PROMETHEUS_MULTIPROC_DIR`` for gunicorn
   (``app/core/metrics.py``); when a worker exits, :func:`child_exit` marks its
   metric files dead, as prometheus_client's multiprocess mode prescribes.
@@ -60,6 +62,20 @@ errorlog = "-"
 logger_class = "app.core.accesslog.AccessLogger"
 accesslog = "-" if _cfg.access_log else None
 access_log_format = '%(h)s "%(r)s" %(s)s %(B)s %(M)sms request=%({x-request-id}o)s'
+
+
+# TLS (issue 31): gunicorn's own certfile and keyfile, TLS 1.2 at least (tls_min_version); a
+# plain-HTTP client gets no answer (its request is not a TLS handshake).  Empty: plain HTTP.
+certfile = _cfg.tls_cert or None
+keyfile = _cfg.tls_key or None
+
+
+def ssl_context(config, default_ssl_context_factory):
+    import ssl
+
+    context = default_ssl_context_factory()
+    context.minimum_version = ssl.TLSVersion.TLSv1_3 if _cfg.tls_min_version == "1.3" else ssl.TLSVersion.TLSv1_2
+    return context
 
 
 # Request limits: the body limit itself is enforced by the app (413); these bound headers.

@@ -48,6 +48,7 @@ import gevent
 from gevent.pool import Pool
 from gevent.server import StreamServer
 from gevent.socket import wait_read
+from gunicorn.sock import ssl_context
 from gunicorn.workers.ggevent import GeventWorker
 from werkzeug.exceptions import RequestTimeout
 
@@ -110,12 +111,19 @@ class HttpWorker(GeventWorker):
 
     def run(self):
         self._loop = gevent.get_hub().loop
+        # bulk-data downloads: zero-copy, never blocking the loop (app/core/sendfile.py)
+        from .core import sendfile
+
+        sendfile.install()
         stop = stopping()
         servers = []
+        # TLS (tls_cert, tls_key): gunicorn's context (app/gunicorn_conf.py's ssl_context), as its own
+        # gevent worker passes it; each connection's handshake runs on that connection's greenlet.
+        tls = {"ssl_context": ssl_context(self.cfg)} if self.cfg.is_ssl else {}
         for sock in self.sockets:
             sock.setblocking(1)
             server = StreamServer(sock, handle=partial(self.handle, sock),
-                                  spawn=Pool(self.worker_connections))
+                                  spawn=Pool(self.worker_connections), **tls)
             if self.cfg.workers > 1:
                 server.max_accept = 1  # as gunicorn's gevent worker: spread accepts over the workers
             server.start()

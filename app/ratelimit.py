@@ -6,7 +6,8 @@ holds at most BURST tokens, gains RATE per second, and each request takes
 one.  Both are off by default.  A request is let through only when both its
 client's bucket and the global one hold a token; a refused request takes
 nothing (so a client over its own limit does not drain the global bucket).
-The client is the real one behind nginx (``app/core/clientaddr.py``).  An event
+The client is the token's client id when the request carries a good bearer token, else the real
+address behind nginx (``app/core/clientaddr.py``; ``app/auth/``'s ``rate_key``).  An event
 stream is one request, counted when it opens.  ``/api/v1/health`` and
 ``/metrics`` are never limited, so monitoring cannot be locked out; nor
 are CORS preflights, which a browser sends before the request that counts
@@ -60,6 +61,7 @@ from flask import Flask, Response, current_app, request
 from common import runfiles, settings
 from common.process import PerProcess
 
+from . import auth
 from .core import metrics
 from .core.errors import ApiError, error_response
 
@@ -172,8 +174,9 @@ class SharedBuckets:
             time.sleep(LOCK_RETRY)  # a greenlet switch in an HTTP worker
 
     # ---- one check ------------------------------------------------------------------------------
-    def take(self, address: str) -> Decision | None:
-        """Take one token for a request of ``address``; None when neither bucket is configured."""
+    def take(self, address: str, spend: bool = True) -> Decision | None:
+        """Take one token for a request of ``address`` (``spend=False``: only look whether one is
+        there); None when neither bucket is configured."""
         if self.client is None and self.overall is None:
             return None
         file = self._open()
@@ -182,11 +185,11 @@ class SharedBuckets:
             self._lock_failed()
             return None
         try:
-            return self._take(file.map, key, time.monotonic())
+            return self._take(file.map, key, time.monotonic(), spend)
         finally:
             fcntl.flock(file.fd, fcntl.LOCK_UN)
 
-    def _take(self, mm: mmap.mmap, key: bytes, now: float) -> Decision:
+    def _take(self, mm: mmap.mmap, key: bytes, now: float, spend: bool = True) -> Decision:
         overall, client = self.overall, self.client
         g_tokens = c_tokens = None
         if overall is not None:
@@ -194,12 +197,12 @@ class SharedBuckets:
         if client is not None:
             offset, c_tokens = self._slot(mm, key, now)
         allowed = (g_tokens is None or g_tokens >= 1.0) and (c_tokens is None or c_tokens >= 1.0)
-        if allowed:
+        if allowed and spend:
             g_tokens = None if g_tokens is None else g_tokens - 1.0
             c_tokens = None if c_tokens is None else c_tokens - 1.0
-        if g_tokens is not None:
+        if g_tokens is not None and spend:
             _GLOBAL.pack_into(mm, _GLOBAL_AT, g_tokens, now)
-        if c_tokens is not None:
+        if c_tokens is not None and spend:
             _SLOT.pack_into(mm, offset, key, c_tokens, now)
         # Describe the bucket that refused (the longer wait if both did), else the emptier one.
         if c_tokens is None:
@@ -257,7 +260,7 @@ def _check() -> Response | None:
     req = request._get_current_object()
     if req.endpoint in EXEMPT_ENDPOINTS or _preflight(req):
         return None
-    decision = current_app.extensions[EXTENSION].take(req.environ.get("REMOTE_ADDR") or "")
+    decision = current_app.extensions[EXTENSION].take(auth.rate_key(req))
     if decision is None:
         return None
     req.environ[DECISION] = decision

@@ -25,7 +25,7 @@ from flask import Flask
 
 from common import settings
 
-from . import ratelimit
+from . import audit, auth, ratelimit
 from .core import (
     clientaddr,
     common,
@@ -65,9 +65,18 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
     metrics.init_app(app)
     clientaddr.init_app(app)
     ratelimit.init_app(app)
+    # Who is acting (issue 31): every request's token and role (app/auth/) before any route runs (and
+    # before the lock check the locks family adds, app/locks/); every write's audit record after it.
+    auth.init_app(app)
+    audit.init_app(app)
     cors.init_app(app)
     errors.init_app(app)
     rosclient.init_app(app)
+    # the fleet over Zenoh (issue 34, app/fleet/): a mode of the gateway, not a family
+    from . import fleet
+
+    if fleet.init_app(app):  # the fleet gateway: its own routes, no ROS worker
+        return app
     app.register_blueprint(root.bp)
     app.register_blueprint(discovery.bp)
     family.plug(app, family.discover())   # the resource families, each by its FAMILY.init_app

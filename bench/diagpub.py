@@ -90,14 +90,15 @@ def _write(path: str, control: dict) -> None:
 class DiagPub:
     """The node above, from a test: ``set(statuses)`` and wait until it applied them."""
 
-    def __init__(self, node: str, namespace: str = "/", rate: float = 10, timeout: float = 20.0):
+    def __init__(self, node: str, namespace: str = "/", rate: float = 10, timeout: float = 20.0,
+                 env: dict | None = None):
         from tests.support.procs import Proc
 
         self.dir = tempfile.mkdtemp(prefix="diagpub-")
         self.control = os.path.join(self.dir, "control.json")
         self.seq = 0
         spec = {"node": node, "namespace": namespace, "control": self.control, "rate": rate}
-        self.proc = Proc([sys.executable, "-m", "bench.diagpub", json.dumps(spec)], name=f"diagpub {node}")
+        self.proc = Proc([sys.executable, "-m", "bench.diagpub", json.dumps(spec)], env=env, name=f"diagpub {node}")
         self.proc.wait_line(lambda line: line == "READY", timeout)
 
     def matched(self, timeout: float = 20.0) -> DiagPub:

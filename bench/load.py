@@ -77,8 +77,10 @@ class LoadResult(dict):
     """``requests, seconds, rps, errors, p50_ms, p90_ms, p99_ms, mean_ms, bytes_per_request``."""
 
 
-def run_wrk(wrk: str, url: str, connections: int, seconds: float) -> LoadResult:
+def run_wrk(wrk: str, url: str, connections: int, seconds: float, headers: dict[str, str] | None = None) -> LoadResult:
     with tempfile.NamedTemporaryFile("w", suffix=".lua", delete=False) as fh:
+        # headers (a bearer token) go in the script, not on a command line that ps shows
+        fh.write("".join(f"wrk.headers[{json.dumps(k)}] = {json.dumps(v)}\n" for k, v in (headers or {}).items()))
         fh.write(WRK_LUA)
         script = fh.name
     try:
@@ -106,15 +108,19 @@ def run_wrk(wrk: str, url: str, connections: int, seconds: float) -> LoadResult:
 
 # ---------------------------------------------------------------------------- Python fallback
 
+HEADERS_ENV = "SOVD_BENCH_HEADERS"   # the fallback's request headers, as JSON (not on its command line)
+
+
 def _worker(url: str, seconds: float, out: list, errors: list, stop_at: float) -> None:
     parts = urllib.parse.urlsplit(url)
     path = parts.path + ("?" + parts.query if parts.query else "")
+    headers = json.loads(os.environ.get(HEADERS_ENV) or "{}")
     conn = http.client.HTTPConnection(parts.hostname, parts.port, timeout=10)
     times, nbytes = [], 0
     while time.perf_counter() < stop_at:
         start = time.perf_counter()
         try:
-            conn.request("GET", path)
+            conn.request("GET", path, headers=headers)
             resp = conn.getresponse()
             body = resp.read()
         except (OSError, http.client.HTTPException):
@@ -148,11 +154,12 @@ def _pyload_main(url: str, connections: int, seconds: float) -> None:
                                      "errors": len(errors), "seconds": elapsed}), flush=True)
 
 
-def run_python(url: str, connections: int, seconds: float) -> LoadResult:
+def run_python(url: str, connections: int, seconds: float, headers: dict[str, str] | None = None) -> LoadResult:
     procs = min(2, connections)
     split = [connections // procs + (1 if i < connections % procs else 0) for i in range(procs)]
+    env = {**os.environ, HEADERS_ENV: json.dumps(headers or {})}
     children = [subprocess.Popen([sys.executable, "-m", "bench.load", url, str(n), str(seconds)],
-                                 stdout=subprocess.PIPE, text=True) for n in split]
+                                 stdout=subprocess.PIPE, text=True, env=env) for n in split]
     times: list[float] = []
     nbytes = errors = 0
     secs = 0.0
@@ -192,10 +199,10 @@ class Load:
         self.note = note
         self.name = wrk_version(wrk) if wrk else "python http.client fallback (bench/load.py)"
 
-    def run(self, url: str, connections: int, seconds: float) -> LoadResult:
+    def run(self, url: str, connections: int, seconds: float, headers: dict[str, str] | None = None) -> LoadResult:
         if self.wrk:
-            return run_wrk(self.wrk, url, connections, seconds)
-        return run_python(url, connections, seconds)
+            return run_wrk(self.wrk, url, connections, seconds, headers)
+        return run_python(url, connections, seconds, headers)
 
 
 if __name__ == "__main__":

@@ -28,6 +28,10 @@ difference between figures of the same run.
 | made-up topics | ROS worker CPU with 1,000 ``fast`` subscriptions on topics nobody publishes, against the same worker holding none |
 | subscription changes | median POST and DELETE of a cyclic subscription with 100 and with 900 held, beside ``/version-info`` |
 | service call | ``POST …/operations/calibrate/executions`` (the demo's ``std_srvs/Trigger``), 1 connection, against a bare rclpy client (``bench/operations.py``) |
+| auth | ``bench/auth.py``: the warm sample through a gateway with ``--auth-enabled --require-auth-for all`` (a JWT on every request) against the same read without authentication, alternating rounds |
+| write checks | ``bench/auth.py``: ``PUT`` of the demo's lights command with the lock check (a lock held on another app) and the audit record, against a gateway with neither |
+| bulk data | ``bench/bulk_data.py``: ROS worker CPU recording 10 topics at 100 Hz against the same topics pooled; warm sample p50 while recordings are written against without; a 200 MB recording downloaded from the gateway against nginx serving the same file |
+| fleet | ``bench/fleet.py``: ``GET /faults`` on the fleet gateway over 500 simulated robots (``bench/fleetsim.py``) against a robot's own, one of them hung; a fault to the fleet's stream; the fleet gateway's memory; a robot's idle CPU with the fleet link on against off |
 
 Floor, warm sample and echo route are measured in alternating rounds (floor
 -c8, sample -c8, echo -c8, floor -c1, sample -c1, echo -c1, health -c1, six
@@ -232,6 +236,16 @@ class Bench:
         # faults (issue 22): /diagnostics at 10 Hz × 50 statuses vs its DDS floor, and the confirm latency
         from . import faults as fault_bench
         cases["faults"] = lambda: fault_bench.case(self)
+        # fleet (issue 34): the fleet gateway over 500 simulated robots; a robot's cost of the link
+        from . import fleet as fleet_bench
+        cases["fleet"] = lambda: fleet_bench.case(self)
+        # who is acting (issue 31): a JWT checked on every warm sample; a write's lock check and audit record
+        from . import auth as auth_bench
+        cases["auth"] = lambda: auth_bench.case_auth(self)
+        cases["write_checks"] = lambda: auth_bench.case_write(self)
+        # bulk data (issue 32): recording's CPU, warm samples during a write, a 200 MB download vs nginx
+        from . import bulk_data as bulk_bench
+        cases["bulk_data"] = lambda: bulk_bench.case(self)
         only = set(self.args.only.split(",")) if self.args.only else set(cases)
         if "old" in only:
             only.add("warm")  # the old design is compared with the warm sample
@@ -683,7 +697,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="extra sovd-gateway flags, e.g. '--workers 3' (recorded in the JSON)")
     parser.add_argument("--rounds", type=int, help="floor/warm rounds (default 3, quick 1)")
     parser.add_argument("--only", metavar="CASES", help="comma-separated subset of: warm (floor, warm "
-                        "sample and echo route), old, memory, image, cold, idle, streams, stream_image, sub_costs, operations, params, rosout, faults (for "
+                        "sample and echo route), old, memory, image, cold, idle, streams, stream_image, sub_costs, operations, params, rosout, faults, fleet, auth, write_checks, bulk_data (for "
                         "development; the table is "
                         "partial)")
     args = parser.parse_args(argv)

@@ -51,6 +51,7 @@ class Setting:
     high: float | None = None
     zero_means: str | None = None  # e.g. "off": 0 is allowed below `low`
     choices: tuple[str, ...] | None = None
+    secret: bool = False  # from the config file or the environment only: never a flag, which ps shows
 
     @property
     def env(self) -> str:
@@ -109,6 +110,10 @@ def _coerce(kind: type, raw: Any) -> Any:
         if value != value or value in (float("inf"), float("-inf")):
             raise ValueError(raw)
         return value
+    if isinstance(raw, list) and all(isinstance(item, str) for item in raw):
+        return ",".join(raw)  # a TOML array of strings, as medkit's string[] (auth_clients)
+    if isinstance(raw, list):  # a TOML list for a comma-separated setting (topics, categories)
+        return ",".join(str(item) for item in raw)
     return str(raw)
 
 
@@ -142,7 +147,8 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("worker_connections", int, 1000,
             "connections one HTTP worker holds at once (idle, reading, in a request or streaming)", 1, 100000),
     Setting("allow_publish", bool, False, "allow PUT .../data/... to publish to ROS topics"),
-    Setting("api_token", str, "", "bearer token required for PUT (empty: none)"),
+    Setting("api_token", str, "", "legacy bearer token: an admin credential; with auth_enabled off, writes "
+            "need it (empty: none)", secret=True),
     Setting("max_body_bytes", int, 1048576, "largest accepted request body in bytes", 1024, 67108864),
     Setting("ipc_timeout", float, 2.0, "seconds an HTTP worker waits for a non-sample ROS-worker reply", 0.1, 60),
     Setting("header_timeout", float, 15.0, "seconds a client may take to send a request's head", 1, 300),
@@ -210,6 +216,83 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("max_triggers_per_client", int, 100, "triggers one client address may hold at once", 1, 100000),
     Setting("max_trigger_bytes", int, 16 * 2**20, "bytes of the records of all triggers held at once "
             "(conditions, targets, paths), in memory and in the store", 2**16, 2**30),
+    # --- who is acting (issue 31): identities and roles (app/auth/), locks (app/locks/, rosworker/locks/),
+    # the audit trail (app/audit/), TLS (app/gunicorn_conf.py); medkit's keys flattened ---
+    Setting("auth_enabled", bool, False, "OAuth2 client credentials and JWTs with medkit's four roles"),
+    Setting("auth_clients", str, "", "the clients: 'id:secret:role,...' (role: viewer, operator, configurator "
+            "or admin)", secret=True),
+    Setting("jwt_secret", str, "", "HS256: the signing secret (at least 32 characters); RS256: the private "
+            "key's PEM file", secret=True),
+    Setting("jwt_public_key", str, "", "RS256: the public key's PEM file"),
+    Setting("jwt_algorithm", str, "HS256", "how tokens are signed", choices=("HS256", "RS256")),
+    Setting("auth_issuer", str, "sovd_gateway", "the iss claim of the tokens (checked on every token)"),
+    Setting("require_auth_for", str, "write", "with auth on: which requests need a token (all: every one "
+            "but /api/v1/auth/**)", choices=("none", "write", "all")),
+    Setting("token_expiry_seconds", int, 3600, "lifetime of an access token", 1, 31536000),
+    Setting("refresh_token_expiry_seconds", int, 86400, "lifetime of a refresh token", 1, 31536000),
+    Setting("auth_failure_limit", str, "1/30", "failed authorizations one client address may make: "
+            "RATE/BURST (failures per second, failures at once); past it 429 (empty: no limit)"),
+    Setting("locking_enabled", bool, True, "SOVD locks on components and apps (a lock blocks everyone "
+            "else's writes in its scopes)"),
+    Setting("locking_default_max_expiration", int, 3600, "longest lock_expiration a client may ask, in "
+            "seconds", 1, 604800),
+    Setting("locking_cleanup_interval", int, 30, "seconds between sweeps of expired locks", 1, 3600),
+    Setting("max_locks", int, 1000, "locks held at once", 1, 100000),
+    Setting("audit_max_records", int, 100000, "audit records kept (the oldest go first)", 100, 10000000, "off"),
+    Setting("audit_max_age_days", int, 90, "days an audit record is kept", 1, 3650),
+    Setting("tls_cert", str, "", "the server certificate's PEM file: TLS 1.2 or newer on the bind address "
+            "(empty: plain HTTP)"),
+    Setting("tls_key", str, "", "the private key's PEM file of tls_cert"),
+    Setting("tls_min_version", str, "1.2", "the oldest TLS version a client may speak",
+            choices=("1.2", "1.3")),
+    # --- the fleet over Zenoh (issue 34; docs/fleet.md, supervisor/fleet/, app/fleet/) ---
+    Setting("fleet_link", bool, False, "join the fleet: a fleet-link process answers the fleet's Zenoh "
+            "queries from this gateway's API and publishes its fault and trigger events"),
+    Setting("fleet_aggregate", bool, False, "run as the fleet gateway: no ROS worker; the robots' trees "
+            "merged, their requests forwarded and fanned out (medkit's aggregation contract)"),
+    Setting("fleet_connect", str, "", "Zenoh router endpoints to connect to, comma-separated "
+            "(e.g. tls/fleet.example.com:7447)"),
+    Setting("fleet_id", str, "", "this robot's name in the fleet (default: its host name made an entity id)"),
+    Setting("fleet_zenoh_config", str, "", "Zenoh configuration file (JSON5: TLS certificates, access "
+            "control ...); mode and fleet_connect are applied on top of it"),
+    Setting("fleet_allow_writes", bool, False, "let writes (PUT, POST, DELETE) pass through the fleet "
+            "(each side checks its own switch; the caller's token goes along)"),
+    Setting("fleet_timeout", float, 2.0, "seconds one robot gets to answer a fleet request "
+            "(medkit's aggregation.timeout_ms)", 0.1, 60),
+    Setting("fleet_max_robots", int, 1000, "robots the fleet gateway keeps (trees, link state, metric "
+            "labels); a robot past it is refused and counted", 1, 100000),
+    Setting("fleet_tree_refresh", float, 60.0, "seconds between two reads of a robot's entity tree when it "
+            "announced no change (it announces changes itself)", 1, 86400),
+    Setting("fleet_forget_after", float, 86400.0, "seconds a disconnected robot's tree stays in the fleet "
+            "view, marked unavailable", 1, 31536000, "never"),
+    # --- bulk data (issue 32): fault recordings (rosworker/bulk_data/) and medkit's bulk-data routes
+    #     (app/bulk_data/); medkit's snapshots.rosbag.* and bulk_data.* flattened ---
+    Setting("fault_rosbag_enabled", bool, False, "record fault_rosbag_topics in a ring buffer and write what "
+            "led up to each confirmed fault as an MCAP file (medkit's snapshots.rosbag.enabled)"),
+    Setting("fault_rosbag_topics", str, "", "topics recorded, comma-separated (or a TOML list); none: "
+            "nothing is subscribed"),
+    Setting("fault_rosbag_duration_s", float, 5.0, "seconds of messages kept before a fault", 0.1, 3600),
+    Setting("fault_rosbag_duration_after_s", float, 1.0, "seconds recorded after a fault is confirmed",
+            0, 600),
+    Setting("fault_rosbag_format", str, "mcap", "recording format: mcap (sqlite3, rosbag2's other format, is "
+            "not written by this gateway)"),
+    Setting("fault_rosbag_storage_path", str, "", "directory of the recordings (default: <state_dir>/rosbags)"),
+    Setting("fault_rosbag_max_buffer_mb", int, 256, "MB of messages the ring buffer (and an open recording) "
+            "holds; past it the oldest are dropped and counted", 1, 65536),
+    Setting("fault_rosbag_max_total_mb", int, 500, "MB of recordings on disk; the oldest are deleted first",
+            1, 10_000_000),
+    Setting("fault_rosbag_max_bags_per_fault", int, 1, "recordings kept per fault code (the newest)",
+            1, 10000, "no cap"),
+    Setting("bulk_data_storage_dir", str, "", "directory of the uploaded bulk-data files (default: "
+            "<state_dir>/bulk_data)"),
+    Setting("bulk_data_max_upload_size", int, 100 * 2**20, "largest bulk-data upload in bytes (413 past it)",
+            1, 2**40),
+    Setting("bulk_data_max_total_mb", int, 1024, "MB of uploaded bulk-data files in all (507 past it)",
+            1, 10_000_000),
+    Setting("bulk_data_categories", str, "", "bulk-data categories of uploaded files, comma-separated (e.g. "
+            "calibration,firmware); rosbags is always there"),
+    Setting("allow_bulk_data", bool, False, "allow POST and DELETE on .../bulk-data (uploading and deleting "
+            "files of the bulk_data_categories)"),
 )
 
 BY_NAME = {s.name: s for s in SETTINGS}
@@ -256,7 +339,13 @@ def add_arguments(parser: argparse.ArgumentParser, names: tuple[str, ...] | None
     for s in SETTINGS:
         if names is not None and s.name not in names:
             continue
-        if s.kind is bool:
+        if s.secret:
+            # Taken only to refuse it with a clear message in load(): a flag shows the secret in ps.
+            parser.add_argument(s.flag, dest=s.name, default=None, help=argparse.SUPPRESS)
+        elif s.kind is bool and s.default:  # on by default: --no-<name> turns it off
+            parser.add_argument(s.flag, dest=s.name, action=argparse.BooleanOptionalAction, default=None,
+                                help=s.help + " (default on)")
+        elif s.kind is bool:
             parser.add_argument(s.flag, dest=s.name, action="store_const", const=True, default=None, help=s.help)
         else:
             rng = s.range_text()
@@ -305,6 +394,10 @@ def load(args: argparse.Namespace | None = None, environ: dict[str, str] | None 
             values[s.name] = s.parse(environ[s.env], f"environment {s.env}")
             sources[s.name] = f"environment {s.env}"
         if flags.get(s.name) is not None:
+            if s.secret:
+                raise ConfigError(f"{s.name}: a secret is never given as a flag ({s.flag}): every user of "
+                                  "the machine sees a command line. Put it in the config file (--config) or "
+                                  f"the environment ({s.env}, e.g. in the service's EnvironmentFile)")
             values[s.name] = s.parse(flags[s.name], f"flag {s.flag}")
             sources[s.name] = f"flag {s.flag}"
     for name in RETIRED:
@@ -329,12 +422,158 @@ def load(args: argparse.Namespace | None = None, environ: dict[str, str] | None 
     def named(name: str) -> str:
         return f"{name} (from {sources[name]})" if name in sources else name
 
-    for name in ("rate_limit", "rate_limit_global"):
+    check_fleet(values)
+    for name in ("rate_limit", "rate_limit_global", "auth_failure_limit"):
         parse_rate(values[name], named(name))
+    _check_identity(values, named)
     parse_origins(values["cors_origins"], named("cors_origins"))
+    check_bulk_data(values, named)
     cfg = Config(values)
     cfg.ignored = tuple(ignored)
     return cfg
+
+
+ROLES = ("viewer", "operator", "configurator", "admin")  # medkit's four, least to most (app/auth/roles.py)
+_CLIENT_ID = re.compile(r"^[A-Za-z0-9_.@-]{1,128}$")
+
+
+@dataclass(frozen=True)
+class Client:
+    """One client of ``auth_clients`` (``id:secret:role``)."""
+
+    client_id: str
+    secret: str
+    role: str
+
+    def __repr__(self) -> str:  # never the secret, whoever prints one
+        return f"Client({self.client_id!r}, role={self.role!r})"
+
+
+def parse_clients(text: str, name: str = "auth_clients") -> tuple[Client, ...]:
+    """``"admin:s3cret:admin,viewer:x:viewer"`` → the clients; the secret is what stands between the
+    first and the last ``:`` (it may hold ``:`` itself).  An error never quotes a secret."""
+    clients: list[Client] = []
+    for number, item in enumerate((part.strip() for part in text.split(",")), 1):
+        if not item:
+            continue
+        client_id, sep, rest = item.partition(":")
+        secret, sep2, role = rest.rpartition(":")
+        if not sep or not sep2:
+            raise ConfigError(f"{name}: entry {number} is not id:secret:role")
+        if not _CLIENT_ID.match(client_id):
+            raise ConfigError(f"{name}: entry {number}: the client id must be 1–128 letters, digits or _ . @ -")
+        if not secret:
+            raise ConfigError(f"{name}: client {client_id!r} has an empty secret")
+        if role.strip().lower() not in ROLES:
+            raise ConfigError(f"{name}: client {client_id!r}: the role must be one of {', '.join(ROLES)}")
+        if any(c.client_id == client_id for c in clients):
+            raise ConfigError(f"{name}: client {client_id!r} is given twice")
+        clients.append(Client(client_id, secret, role.strip().lower()))
+    return tuple(clients)
+
+
+def _check_identity(values: dict[str, Any], named: Any) -> None:
+    """The auth and TLS settings, as medkit's AuthConfigBuilder checks them; never quotes a secret."""
+    parse_clients(values["auth_clients"], named("auth_clients"))
+    if values["auth_enabled"]:
+        if not values["auth_clients"].strip() and not values["api_token"]:
+            raise ConfigError("auth_enabled: give the clients in auth_clients (config file or "
+                              "SOVD_AUTH_CLIENTS): id:secret:role,...")
+        if values["jwt_algorithm"] == "HS256" and len(values["jwt_secret"]) < 32:
+            raise ConfigError("jwt_secret: HS256 needs a secret of at least 32 characters (config file or "
+                              "SOVD_JWT_SECRET; e.g. openssl rand -base64 32)")
+        if values["jwt_algorithm"] == "RS256":
+            for key in ("jwt_secret", "jwt_public_key"):
+                path = values[key]
+                if not path or not os.path.isfile(path) or not os.access(path, os.R_OK):
+                    raise ConfigError(f"{key}: RS256 needs a readable PEM file here"
+                                      + (" (the private key)" if key == "jwt_secret" else " (the public key)"))
+        if values["refresh_token_expiry_seconds"] < values["token_expiry_seconds"]:
+            raise ConfigError("refresh_token_expiry_seconds: must be at least token_expiry_seconds")
+    if bool(values["tls_cert"]) != bool(values["tls_key"]):
+        raise ConfigError("tls_cert, tls_key: give both (the certificate and its private key), or neither")
+    for key in ("tls_cert", "tls_key"):
+        path = values[key]
+        if path and (not os.path.isfile(path) or not os.access(path, os.R_OK)):
+            raise ConfigError(f"{named(key)}: {path!r} is not a readable file")
+
+
+# ---- bulk data (issue 32) ---------------------------------------------------------------------------
+ROSBAGS = "rosbags"  # the recordings' category: always there, read-only
+_CATEGORY = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
+_TOPIC_NAME = re.compile(r"^/[A-Za-z0-9_~{}/]*$")
+
+
+def names(text: str) -> list[str]:
+    """A comma-separated setting's items (topics, categories), stripped, empty ones left out, each once."""
+    return list(dict.fromkeys(item.strip() for item in text.split(",") if item.strip()))
+
+
+def check_bulk_data(values: dict[str, Any], named=lambda name: name) -> None:
+    if values["fault_rosbag_format"] != "mcap":
+        fmt = values["fault_rosbag_format"]
+        raise ConfigError(f"{named('fault_rosbag_format')}: {fmt!r} is not written by this gateway: "
+                          + ("sqlite3 (rosbag2's db3) needs rosbag2's C++ storage plugin; " if fmt == "sqlite3" else "")
+                          + "use mcap, which ros2 bag, Foxglove and medkit's clients read")
+    for topic in names(values["fault_rosbag_topics"]):
+        if not _TOPIC_NAME.match(topic) or "//" in topic or (len(topic) > 1 and topic.endswith("/")):
+            raise ConfigError(f"{named('fault_rosbag_topics')}: {topic!r} is not a topic name "
+                              "(absolute: /robot/odom)")
+    for category in names(values["bulk_data_categories"]):
+        if category == ROSBAGS or not _CATEGORY.match(category):
+            raise ConfigError(f"{named('bulk_data_categories')}: {category!r} cannot be a category (1-64 "
+                              "letters, digits, _ and -, starting with a letter or digit; not rosbags, "
+                              "which is the fault recordings')")
+
+
+def rosbag_dir(cfg: dict[str, Any], environ=os.environ) -> str:
+    """Where the fault recordings are: ``fault_rosbag_storage_path``, else ``<state_dir>/rosbags``."""
+    return cfg["fault_rosbag_storage_path"] or os.path.join(cfg["state_dir"] or default_state_dir(environ),
+                                                            ROSBAGS)
+
+
+def bulk_data_dir(cfg: dict[str, Any], environ=os.environ) -> str:
+    """Where uploaded bulk-data files are: ``bulk_data_storage_dir``, else ``<state_dir>/bulk_data``."""
+    return cfg["bulk_data_storage_dir"] or os.path.join(cfg["state_dir"] or default_state_dir(environ),
+                                                        "bulk_data")
+
+
+# ---- the fleet (issue 34) -------------------------------------------------------------------------
+FLEET_ID_MAX = 64
+# An entity id's characters, no "__" (medkit's rename separator) and no leading or trailing "_".
+_FLEET_ID = re.compile(r"^[A-Za-z0-9-]+(?:_[A-Za-z0-9-]+)*$")
+
+
+def default_fleet_id(hostname: str) -> str:
+    """The host name as a fleet id: lower case, ``[a-z0-9-]`` and single ``_`` only, at most 64."""
+    text = re.sub(r"[^a-z0-9-]+", "_", hostname.lower()).strip("_")[:FLEET_ID_MAX].strip("_")
+    return text or "robot"
+
+
+def check_fleet(values: dict[str, Any]) -> None:
+    """The fleet settings together: one role, somewhere to connect, an identity to check, a valid id."""
+    if not (values["fleet_link"] or values["fleet_aggregate"]):
+        return
+    if values["fleet_link"] and values["fleet_aggregate"]:
+        raise ConfigError("fleet_link and fleet_aggregate: a fleet gateway runs no ROS worker, so it has "
+                          "nothing of its own to answer; turn one of them off")
+    role = "fleet_link" if values["fleet_link"] else "fleet_aggregate"
+    if not values["fleet_connect"].strip() and not values["fleet_zenoh_config"]:
+        raise ConfigError(f"{role}: give fleet_connect (the Zenoh router, e.g. tcp/10.0.0.1:7447) or a "
+                          "fleet_zenoh_config that names one")
+    if not values["api_token"]:
+        raise ConfigError(f"{role}: set api_token: nothing is answered through the fleet without a valid "
+                          "identity (the caller's bearer token, checked by the robot's own gateway)")
+    if values["fleet_zenoh_config"] and not os.path.isfile(values["fleet_zenoh_config"]):
+        raise ConfigError(f"fleet_zenoh_config: {values['fleet_zenoh_config']!r} is not a file")
+    if not values["fleet_id"]:
+        import socket
+
+        values["fleet_id"] = default_fleet_id(socket.gethostname())
+    if len(values["fleet_id"]) > FLEET_ID_MAX or not _FLEET_ID.match(values["fleet_id"]):
+        raise ConfigError(f"fleet_id: {values['fleet_id']!r} is not a fleet id: 1–{FLEET_ID_MAX} letters, "
+                          "digits, - and single _ (not first or last: __ separates a robot's name from a "
+                          "renamed app's id)")
 
 
 @dataclass(frozen=True)

@@ -42,6 +42,9 @@ LONGEST_SOCKET = "rosworker-events.sock"
 READY_WAIT = 90.0   # seconds the banner waits for the gateway's first answer
 
 
+DEMO_RECORDED = "/powertrain/engine/temperature,/chassis/brakes/pressure,/chassis/odom,/power/battery"
+
+
 def parse(argv: list[str] | None = None) -> tuple[argparse.Namespace, list[str]]:
     parser = argparse.ArgumentParser(description="Run the demo robot and the gateway together; "
                                                  "any other flag goes to sovd-gateway.")
@@ -114,8 +117,10 @@ def main(argv: list[str] | None = None) -> int:
     robot = Child("demo robot", [sys.executable, "-m", "demo.robot"], env, signal.SIGTERM, output=log)
     # Publishing, operations and configurations are off by default; the demo turns them on so that
     # the README's examples work.  ARGS of `make run` add more (--allow-fault-clear, --api-token ...).
+    # It records a few topics: a confirmed fault gets a recording of them (bulk data, issue 32).
     gateway = Child("sovd-gateway", [str(BIN / "sovd-gateway"), "--bind", args.bind, "--allow-publish",
                                      "--allow-operations", "--allow-configurations",
+                                     "--fault-rosbag-enabled", "--fault-rosbag-topics", DEMO_RECORDED,
                                      "--state-dir", str(state), "--runtime-dir", str(run),
                                      *gateway_args], env, signal.SIGTERM)
     stopping = []

@@ -46,9 +46,11 @@ GAUGE = "gauge"      # goes up and down, or a setting's value
 FLAG = "flag"        # true or false (exported as a 1/0 gauge)
 BY = "by"            # a map: label value -> count (exported as one counter family, ``label`` its label)
 TIMINGS = "timings"  # a map: command -> {"count", "time_us"} (two counter families)
+GAUGES_BY = "gauges by"  # a map: label value -> value now (one gauge family, ``label`` its label)
 
 ROS = "ros"
 HTTP = "http"
+FLEET = "fleet"  # the fleet-link process (supervisor/fleet/), in its own ``stats`` answer
 
 # Sections of the stats answer -> /health's (None: not in /health, only in /metrics).
 SECTIONS: dict[str, str | None] = {
@@ -58,7 +60,13 @@ SECTIONS: dict[str, str | None] = {
     "details": None,
     "operations": "x-medkit-operations",   # operations: services and actions
     "logs": "x-medkit-logs",  # logs: /rosout's ring buffers (issue 22)
+    "locks": "x-medkit-locks",  # SOVD locks (issue 31)
+    "bulk_data": "x-medkit-bulk-data",  # fault recordings (issue 32, rosworker/bulk_data/)
 }
+# The fleet link's sections (issue 34, supervisor/fleet/stats.py): its /health section, and the fleet
+# gateway's per-robot counts, only in /metrics.  Not in the ROS worker's answer.
+FLEET_SECTIONS: dict[str, str | None] = {"fleet": "x-medkit-fleet", "fleet_robots": None}
+ALL_SECTIONS = {**SECTIONS, **FLEET_SECTIONS}
 
 
 @dataclass(frozen=True)
@@ -230,6 +238,107 @@ COUNTERS: tuple[Counter, ...] = (
       "message, however many triggers watch the topic)", "sovd_ros_trigger_messages"),
     C("streams", "trigger_events", COUNTER, "Trigger events sent to the HTTP workers (firings)",
       "sovd_ros_trigger_events"),
+    # ---- the fleet link (issue 34; supervisor/fleet/): both roles ----
+    C("fleet", "session_open", FLAG, "True while the link's Zenoh session is open (connected to a router)",
+      "sovd_fleet_session_open", origin=FLEET),
+    C("fleet", "session_attempts", COUNTER, "Attempts to open the Zenoh session", "sovd_fleet_session_attempts",
+      origin=FLEET),
+    # a robot's link
+    C("fleet", "queries_answered", COUNTER, "Fleet queries this robot answered (any status)",
+      "sovd_fleet_queries_answered", origin=FLEET),
+    C("fleet", "queries_refused", COUNTER, "Fleet queries refused: no valid identity, a write with "
+      "fleet_allow_writes off, a malformed or streaming request", "sovd_fleet_queries_refused", origin=FLEET),
+    C("fleet", "queries_busy", COUNTER, "Fleet queries answered 503 because the link had too many in hand",
+      "sovd_fleet_queries_busy", origin=FLEET),
+    C("fleet", "loopback_errors", COUNTER, "Fleet queries the robot's own gateway did not answer in time",
+      "sovd_fleet_loopback_errors", origin=FLEET),
+    C("fleet", "events_published", COUNTER, "Fault and trigger events this robot published to the fleet",
+      "sovd_fleet_events_published", origin=FLEET),
+    C("fleet", "tree_changes", COUNTER, "Changes of this robot's entity tree announced to the fleet",
+      "sovd_fleet_tree_changes", origin=FLEET),
+    # the fleet gateway's link
+    C("fleet", "robots_known", GAUGE, "Robots in the fleet view (connected or retained)", "sovd_fleet_robots",
+      origin=FLEET),
+    C("fleet", "robots_online", GAUGE, "Robots whose liveliness token is present now", "sovd_fleet_robots_online",
+      origin=FLEET),
+    C("fleet", "max_robots", GAUGE, "Most robots kept (fleet_max_robots)", "sovd_fleet_robots_cap",
+      setting="fleet_max_robots", origin=FLEET),
+    C("fleet", "robots_refused", COUNTER, "Robots not taken in because fleet_max_robots were kept",
+      "sovd_fleet_robots_refused", origin=FLEET),
+    C("fleet", "queries_sent", COUNTER, "Queries sent to robots (a fan-out counts one per robot)",
+      "sovd_fleet_queries_sent", origin=FLEET),
+    C("fleet", "query_failures", COUNTER, "Robots that did not answer a query in time, or failed it",
+      "sovd_fleet_query_failures", origin=FLEET),
+    C("fleet", "fanouts", COUNTER, "Collection requests fanned out to robots", "sovd_fleet_fanouts",
+      origin=FLEET),
+    C("fleet", "forwards", COUNTER, "Requests forwarded to the robot that owns the entity", "sovd_fleet_forwards",
+      origin=FLEET),
+    C("fleet", "tree_reads", COUNTER, "Entity trees read from robots", "sovd_fleet_tree_reads", origin=FLEET),
+    C("fleet", "tree_merges", COUNTER, "Times the fleet's merged tree was rebuilt", "sovd_fleet_tree_merges",
+      origin=FLEET),
+    C("fleet", "tree_entities", GAUGE, "Entities in the merged tree now", "sovd_fleet_tree_entities",
+      origin=FLEET),
+    C("fleet", "tree_bytes", GAUGE, "Bytes of the robots' trees held (their JSON)", "sovd_fleet_tree_bytes",
+      origin=FLEET),
+    C("fleet", "events_received", COUNTER, "Fault events taken from robots (each once)",
+      "sovd_fleet_events_received", origin=FLEET),
+    C("fleet", "events_duplicates", COUNTER, "Fault events dropped as already taken (a replay overlapping)",
+      "sovd_fleet_events_duplicates", origin=FLEET),
+    C("fleet", "events_kept", GAUGE, "Fault events kept for Last-Event-ID replay", "sovd_fleet_events_kept",
+      origin=FLEET),
+    # per robot, bounded by fleet_max_robots (a robot's series go when it is forgotten)
+    C("fleet_robots", "robot_up", GAUGES_BY, "1 while the robot's liveliness token is present",
+      "sovd_fleet_robot_up", label="robot", origin=FLEET),
+    C("fleet_robots", "robot_latency_ms", GAUGES_BY, "The robot's answer time, smoothed over its last answers",
+      "sovd_fleet_robot_latency_seconds", label="robot", scale=1e-3, origin=FLEET),
+    C("fleet_robots", "robot_queries", BY, "Queries sent to the robot", "sovd_fleet_robot_queries",
+      label="robot", origin=FLEET),
+    C("fleet_robots", "robot_failures", BY, "Queries the robot did not answer in time, or failed",
+      "sovd_fleet_robot_failures", label="robot", origin=FLEET),
+    C("fleet_robots", "robot_events", BY, "Fault events taken from the robot", "sovd_fleet_robot_events",
+      label="robot", origin=FLEET),
+    # ---- x-medkit-bulk-data: fault recordings (issue 32; rosworker/bulk_data/) ----
+    C("bulk_data", "rosbag_topics_configured", GAUGE, "Topics fault_rosbag_topics names (0: nothing recorded)",
+      "sovd_ros_rosbag_topics_configured"),
+    C("bulk_data", "rosbag_topics_recorded", GAUGE, "Recorded topics subscribed now (their publishers were "
+      "found and their type is installed)", "sovd_ros_rosbag_topics_recorded"),
+    C("bulk_data", "rosbag_messages", COUNTER, "Messages of the recorded topics taken", "sovd_ros_rosbag_messages"),
+    C("bulk_data", "rosbag_buffer_bytes", GAUGE, "Bytes of messages in the ring buffer now",
+      "sovd_ros_rosbag_buffer_bytes"),
+    C("bulk_data", "rosbag_buffer_messages", GAUGE, "Messages in the ring buffer now",
+      "sovd_ros_rosbag_buffer_messages"),
+    C("bulk_data", "rosbag_buffer_cap_mb", GAUGE, "MB the ring buffer holds at most (fault_rosbag_max_buffer_mb)",
+      "sovd_ros_rosbag_buffer_cap_mb", setting="fault_rosbag_max_buffer_mb"),
+    C("bulk_data", "rosbag_buffer_drops", COUNTER, "Messages dropped for the buffer's byte cap (the oldest go "
+      "first; in an open recording, the newest)", "sovd_ros_rosbag_buffer_drops"),
+    C("bulk_data", "rosbag_recording_active", FLAG, "1 while a recording takes the messages after its fault",
+      "sovd_ros_rosbag_recording_active"),
+    C("bulk_data", "rosbag_recordings_written", COUNTER, "Recordings written to disk",
+      "sovd_ros_rosbag_recordings_written"),
+    C("bulk_data", "rosbag_write_errors", COUNTER, "Recordings that could not be written (disk full, directory "
+      "not writable, writer busy)", "sovd_ros_rosbag_write_errors"),
+    C("bulk_data", "rosbag_writes_pending", GAUGE, "Closed recordings waiting for the writer thread now",
+      "sovd_ros_rosbag_writes_pending"),
+    C("bulk_data", "rosbag_recordings", GAUGE, "Recordings on disk now", "sovd_ros_rosbag_recordings"),
+    C("bulk_data", "rosbag_disk_bytes", GAUGE, "Bytes of the recordings on disk now", "sovd_ros_rosbag_disk_bytes"),
+    C("bulk_data", "rosbag_disk_cap_mb", GAUGE, "MB of recordings kept at most (fault_rosbag_max_total_mb)",
+      "sovd_ros_rosbag_disk_cap_mb", setting="fault_rosbag_max_total_mb"),
+    C("bulk_data", "rosbag_evicted", COUNTER, "Recordings deleted for the caps (per fault, disk, count)",
+      "sovd_ros_rosbag_evicted"),
+    C("bulk_data", "rosbag_faults_unattached", COUNTER, "Faults confirmed while a recording with 33 faults was "
+      "open: in its data, not listed with it", "sovd_ros_rosbag_faults_unattached"),
+    C("bulk_data", "rosbag_definition_errors", COUNTER, "Message types whose definition was not found or did not "
+      "decode their messages", "sovd_ros_rosbag_definition_errors"),
+)
+# ---- x-medkit-locks: SOVD locks (issue 31; rosworker/locks/, the write check in app/locks/) ----
+COUNTERS += (
+    C("locks", "locks_held", GAUGE, "Locks held now", "sovd_ros_locks_held"),
+    C("locks", "locks_acquired", COUNTER, "Locks acquired (break_lock included)", "sovd_ros_locks_acquired"),
+    C("locks", "locks_released", COUNTER, "Locks released by their owners", "sovd_ros_locks_released"),
+    C("locks", "locks_broken", COUNTER, "Locks taken over by another client with break_lock", "sovd_ros_locks_broken"),
+    C("locks", "locks_expired", COUNTER, "Locks that ran out", "sovd_ros_locks_expired"),
+    C("locks", "lock_refusals", COUNTER, "Writes refused 409 because another client's lock covers them",
+      "sovd_http_lock_refusals", origin=HTTP),
 )
 del C
 
@@ -260,6 +369,10 @@ COMMANDS: tuple[Command, ...] = (
     K("logs", "logs"), K("log_config_get", "logs"), K("log_config_set", "logs", write=True),
     K("trig_create", "triggers", write=True), K("trig_list", "triggers"), K("trig_get", "triggers"),
     K("trig_update", "triggers", write=True), K("trig_delete", "triggers", write=True), K("trig_open", "triggers"),
+    K("lock_acquire", "locks", write=True), K("lock_extend", "locks", write=True),
+    K("lock_release", "locks", write=True), K("lock_list", "locks"),
+    # bulk data: fault recordings; bulk_debug_pause only with debug_commands
+    K("bulk_rosbags", "bulk_data"), K("bulk_rosbag_get", "bulk_data"), K("bulk_debug_pause", "bulk_data"),
 )
 del K
 
@@ -273,6 +386,7 @@ EVICTION_CAUSES = ("graph", "type_change", "lru", "idle", "qos_rebuild", "manual
 
 ROS_COUNTERS = tuple(c for c in COUNTERS if c.origin == ROS)
 HTTP_COUNTERS = tuple(c for c in COUNTERS if c.origin == HTTP)
+FLEET_COUNTERS = tuple(c for c in COUNTERS if c.origin == FLEET)
 
 
 def section(name: str, origin: str | None = None) -> tuple[Counter, ...]:
@@ -300,12 +414,12 @@ def markdown() -> str:
     """The table of every counter, as ipc/PROTOCOL.md holds it between :data:`BEGIN` and :data:`END`."""
     rows = ["| section | key | kind | from | metric | meaning |", "|---|---|---|---|---|---|"]
     for c in COUNTERS:
-        health = SECTIONS[c.section]
+        health = ALL_SECTIONS[c.section]
         where = f"`{c.section}` (`{health}`)" if health else f"`{c.section}`"
         metric = f"`{c.metric}`" + (f" `{{{c.label}}}`" if c.label else "") if c.metric else ""
         if c.metric in TIMINGS_SECONDS:
             metric += f", `{TIMINGS_SECONDS[c.metric][0]}` `{{{c.label}}}`"
-        origin = "ROS worker" if c.origin == ROS else "HTTP workers"
+        origin = {ROS: "ROS worker", HTTP: "HTTP workers", FLEET: "fleet link"}[c.origin]
         rows.append(f"| {where} | `{c.name}` | {c.kind} | {origin} | {metric} | {c.help.replace('|', '/')} |")
     rows += ["", "Commands (the keys of `commands`; a write's answer lost with the ROS worker is `outcome-unknown`):",
              "", "| command | served by | write |", "|---|---|---|"]

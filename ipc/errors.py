@@ -37,6 +37,7 @@ CODES: frozenset[str] = frozenset({
     "outcome-unknown",   # a write reached the ROS worker, which went away before it answered
     "subscriptions-full",
     "deadline-exceeded",
+    "no-such-recording",  # bulk data: a fault recording that is not there (rosworker/bulk_data/)
     # operations: services and actions
     "invalid-operation-data",
     "type-introspection-failed",
@@ -58,6 +59,7 @@ CODES: frozenset[str] = frozenset({
     # triggers (rosworker/triggers/registry.py)
     "no-such-trigger",
     "triggers-full",
+    "lock-conflict", "lock-not-found", "lock-not-owner", "locks-full",  # locks (rosworker/locks/)
 })
 
 

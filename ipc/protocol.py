@@ -50,8 +50,11 @@ def endpoint(runtime_dir: str) -> str:
 
 
 def control_endpoint(work_endpoint: str) -> str:
-    """The control socket beside a work socket (``.../rosworker.sock`` → ``.../rosworker-ctl.sock``)."""
-    head, sep, _ = work_endpoint.rpartition("/")
+    """The control socket beside a work socket (``.../rosworker.sock`` → ``.../rosworker-ctl.sock``;
+    the fleet link's ``.../fleetlink.sock`` → ``.../fleetlink-ctl.sock``)."""
+    head, sep, tail = work_endpoint.rpartition("/")
+    if sep and tail.endswith(".sock"):
+        return f"{head}{sep}{tail[:-len('.sock')]}-ctl.sock"
     return f"{head}{sep}{CONTROL_SOCKET_NAME}" if sep else work_endpoint + "-ctl"
 
 

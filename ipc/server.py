@@ -108,7 +108,7 @@ def bind_router(zctx: zmq.Context, runtime_dir: str, name: str) -> zmq.Socket:
     # need, and it bounds what a hostile peer makes the worker buffer.
     router.setsockopt(zmq.RCVHWM, 1000)
     router.setsockopt(zmq.SNDHWM, 1000)
-    return _bind_private(router, runtime_dir, name)
+    return bind_private(router, runtime_dir, name)
 
 
 def bind_publisher(zctx: zmq.Context, runtime_dir: str) -> zmq.Socket:
@@ -119,10 +119,10 @@ def bind_publisher(zctx: zmq.Context, runtime_dir: str) -> zmq.Socket:
     pub.setsockopt(zmq.SNDHWM, events.HIGH_WATER)
     pub.setsockopt(zmq.XPUB_VERBOSE, 1)
     pub.setsockopt(zmq.MAXMSGSIZE, 4096)  # subscription messages are all it ever receives
-    return _bind_private(pub, runtime_dir, events.EVENTS_SOCKET_NAME)
+    return bind_private(pub, runtime_dir, events.EVENTS_SOCKET_NAME)
 
 
-def _bind_private(sock: zmq.Socket, runtime_dir: str, name: str) -> zmq.Socket:
+def bind_private(sock: zmq.Socket, runtime_dir: str, name: str) -> zmq.Socket:
     path = os.path.join(runtime_dir, name)
     if os.path.exists(path):
         os.unlink(path)  # stale: we hold the lock, so nobody else serves it
@@ -151,10 +151,12 @@ def reply_frame(rid: int, result: dict[str, Any] | None = None, error: IpcError 
     return protocol.pack({"v": protocol.VERSION, "id": rid, "ok": True, "result": result})
 
 
-def read_requests(router: zmq.Socket, stats, accept: Callable[[Request], None]) -> None:
+def read_requests(router: zmq.Socket, stats, accept: Callable[[Request], None],
+                  commands: tuple[str, ...] = protocol.COMMANDS) -> None:
     """Read the requests waiting on ``router`` and hand each valid one to ``accept``.
 
-    ``accept`` may raise :class:`IpcError`, which is answered to that request.
+    ``accept`` may raise :class:`IpcError`, which is answered to that request.  ``commands``: those
+    this socket serves (the fleet link's are its own, ``supervisor/fleet/server.py``).
     """
     for _ in range(READ_BATCH):
         if not router.get(zmq.EVENTS) & zmq.POLLIN:
@@ -178,12 +180,12 @@ def read_requests(router: zmq.Socket, stats, accept: Callable[[Request], None]) 
             stats.ipc_dropped_frames += 1
             continue
         try:
-            accept(_decode(identity, rid, message))
+            accept(_decode(identity, rid, message, commands))
         except IpcError as exc:
             _send(router, identity, reply_frame(rid, error=exc))
 
 
-def _decode(identity: bytes, rid: int, message: dict) -> Request:
+def _decode(identity: bytes, rid: int, message: dict, commands: tuple[str, ...] = protocol.COMMANDS) -> Request:
     if message.get("v") != protocol.VERSION:
         raise IpcError("unsupported-version",
                        f"protocol version {message.get('v')!r} is not supported (this worker speaks "
@@ -191,7 +193,7 @@ def _decode(identity: bytes, rid: int, message: dict) -> Request:
     cmd = message.get("cmd")
     args = message.get("args", {})
     budget = message.get("deadline_ms", 5000)
-    if not isinstance(cmd, str) or cmd not in protocol.COMMANDS:
+    if not isinstance(cmd, str) or cmd not in commands:
         raise IpcError("unknown-command", f"unknown command {str(cmd)[:64]!r}")
     if not isinstance(args, dict):
         raise IpcError("bad-request", "args: expected a map")
@@ -213,7 +215,10 @@ def _send(router: zmq.Socket, identity: bytes, frame: bytes) -> None:
 class ControlServer:
     """The control thread: ``ping`` and ``stats`` on ``rosworker-ctl.sock``, and the watchdog."""
 
-    def __init__(self, zctx: zmq.Context, runtime_dir: str, stats, info: dict[str, Any]):
+    def __init__(self, zctx: zmq.Context, runtime_dir: str, stats, info: dict[str, Any],
+                 socket_name: str = protocol.CONTROL_SOCKET_NAME, check_every: float = WATCHDOG_CHECK):
+        self.socket_name = socket_name  # the fleet link serves its own (fleetlink-ctl.sock)
+        self.check_every = check_every  # the fleet link has no executor to watch: it looks up seldom
         self.zctx = zctx
         self.runtime_dir = runtime_dir
         self.stats = stats
@@ -266,7 +271,7 @@ class ControlServer:
 
     def _run(self) -> None:
         try:
-            router = bind_router(self.zctx, self.runtime_dir, protocol.CONTROL_SOCKET_NAME)
+            router = bind_router(self.zctx, self.runtime_dir, self.socket_name)
         except BaseException as exc:
             self._error = exc
             self._ready.set()
@@ -275,17 +280,17 @@ class ControlServer:
         try:
             while not self._stop.is_set():
                 try:
-                    if router.poll(int(WATCHDOG_CHECK * 1000), zmq.POLLIN):
+                    if router.poll(int(self.check_every * 1000), zmq.POLLIN):
                         read_requests(router, self.stats, lambda request: self._accept(router, request))
                     self.stats.check_watchdog()
                 except zmq.ContextTerminated:
                     break
                 except Exception:
                     self._contained("the control loop")
-                    self._stop.wait(WATCHDOG_CHECK)  # never a hot loop of the same failure
+                    self._stop.wait(self.check_every)  # never a hot loop of the same failure
         finally:
             router.close(linger=0)
             try:
-                os.unlink(os.path.join(self.runtime_dir, protocol.CONTROL_SOCKET_NAME))
+                os.unlink(os.path.join(self.runtime_dir, self.socket_name))
             except OSError:
                 pass

@@ -101,14 +101,23 @@ def bind_problem(bind: str) -> str | None:
     return None
 
 
-def http_answers(bind: str, timeout: float = 2.0) -> bool:
-    """True when something on ``bind`` answers an HTTP request (any status)."""
+def http_answers(bind: str, timeout: float = 2.0, tls: bool = False) -> bool:
+    """True when something on ``bind`` answers an HTTP request (any status; over TLS with ``tls``,
+    whatever its certificate: this only asks whether gunicorn is up)."""
     host, port = _split_bind(bind)
     if host in ("", "0.0.0.0"):
         host = "127.0.0.1"
     elif host == "::":
         host = "::1"
-    conn = http.client.HTTPConnection(host, port, timeout=timeout)
+    if tls:
+        import ssl
+
+        context = ssl.create_default_context()
+        context.check_hostname = False
+        context.verify_mode = ssl.CERT_NONE
+        conn: http.client.HTTPConnection = http.client.HTTPSConnection(host, port, timeout=timeout, context=context)
+    else:
+        conn = http.client.HTTPConnection(host, port, timeout=timeout)
     try:
         conn.request("GET", "/api/v1/health")
         conn.getresponse().read()

@@ -30,6 +30,13 @@ stopping
     worker (it drains), SIGKILL whatever is left past its deadline, reap.  A
     second signal while stopping kills at once.
 
+The fleet (issue 34, ``supervisor/fleet/``, ``docs/fleet.md``): with ``fleet_aggregate`` the
+gateway is the fleet gateway and runs no ROS worker; its fleet link (``sovd-fleetlink``) takes the
+ROS worker's place above (booted, pinged, watched, restarted, its ``ping``/``stats`` on its own
+control socket).  With ``fleet_link`` a robot's fleet link is one more child (``supervisor/fleet/child.py``):
+started once gunicorn answers, restarted with a backoff whenever it dies (never a reason to stop the
+gateway), stopped first.
+
 Signal handlers only record the signal; ``signal.set_wakeup_fd`` wakes the
 main loop, which acts.  Each child runs in its own process group (Ctrl-C in a
 terminal reaches only the supervisor, which stops them in order) with a
@@ -58,8 +65,10 @@ from common.settings import RESTART_ENV, Config
 from ipc import protocol
 from ipc.client import RosWorkerClient
 from ipc.errors import IpcError
+from ipc.fleet import endpoint as fleet_endpoint
 
 from .children import Child, bind_problem, gunicorn_argv, http_answers, rosworker_argv
+from .fleet.child import LinkChild, fleetlink_argv
 from .limits import raise_nofile
 from .sdnotify import Notifier, child_env
 
@@ -89,9 +98,16 @@ class Supervisor:
         self.cfg = cfg
         self.notifier = notifier if notifier is not None else Notifier()
         self.state = STOPPED
+        # The fleet gateway (issue 34, fleet_aggregate) runs no ROS worker: its fleet link takes the
+        # worker's place here (booted, watched and restarted the same way; docs/fleet.md).  A robot's
+        # fleet link (fleet_link) is a child of its own, started once HTTP answers (``self.link``).
+        self.aggregating = bool(cfg.fleet_aggregate)
+        self.what = "fleet link" if self.aggregating else "ROS worker"
         self.worker: Child | None = None
         self.http: Child | None = None
-        self.client = RosWorkerClient(protocol.endpoint(cfg.runtime_dir))
+        self.link = LinkChild(cfg.runtime_dir, self._child_env) if cfg.fleet_link else None
+        self.client = RosWorkerClient(fleet_endpoint(cfg.runtime_dir) if self.aggregating
+                                      else protocol.endpoint(cfg.runtime_dir))
         self._signals: collections.deque[int] = collections.deque()
         self._wake_r = self._wake_w = -1
         self._old_handlers: dict[int, object] = {}
@@ -217,7 +233,7 @@ class Supervisor:
         except OSError as exc:
             log.error("cannot prepare %s: %s", runfiles.metrics_dir(cfg.runtime_dir), exc.strerror or exc)
             return EXIT_CANNOT_BOOT
-        self._status(f"starting ROS worker (runtime dir {cfg.runtime_dir})")
+        self._status(f"starting {self.what} (runtime dir {cfg.runtime_dir})")
         self._start_worker()
         return None
 
@@ -235,7 +251,8 @@ class Supervisor:
         env = self._child_env()
         if not self.is_starting():  # a restart: the worker may wait for its predecessor's lock
             env[RESTART_ENV] = str(self._restart_attempt)
-        self.worker = Child("ROS worker", rosworker_argv(self.cfg.runtime_dir), env, signal.SIGKILL)
+        argv = fleetlink_argv(self.cfg.runtime_dir) if self.aggregating else rosworker_argv(self.cfg.runtime_dir)
+        self.worker = Child(self.what, argv, env, signal.SIGKILL)
         self.worker.start()
         self.worker_ready = False
         self._degraded_since = None
@@ -247,7 +264,7 @@ class Supervisor:
                                             self.worker.pid)
         except OSError as exc:
             log.warning("cannot write %s: %s", runfiles.SUPERVISOR_STATE, exc.strerror or exc)
-        log.info("ROS worker pid %d started", self.worker.pid)
+        log.info("%s pid %d started", self.what, self.worker.pid)
 
     def _start_http(self) -> None:
         env = self._child_env()
@@ -281,6 +298,8 @@ class Supervisor:
             times.append(self._restart_at)
         if self.is_running() and self.notifier.watchdog_interval:
             times.append(self._next_watchdog)
+        if self.link is not None and self.link.next_step is not None:
+            times.append(self.link.next_step)
         return min(times)
 
     def _step(self) -> int | None:
@@ -293,7 +312,7 @@ class Supervisor:
                 return code
         if self.worker is None and self._restart_at is not None and now >= self._restart_at:
             self._restart_at = None
-            self._status(f"restarting ROS worker (attempt {self._restart_attempt}/{self.cfg.restart_limit})")
+            self._status(f"restarting {self.what} (attempt {self._restart_attempt}/{self.cfg.restart_limit})")
             self._start_worker()
         if self.worker is not None and not self.worker_ready:
             code = self._check_boot(now)
@@ -307,6 +326,8 @@ class Supervisor:
             code = self._check_health()
             if code is not None:
                 return code
+        if self.link is not None:
+            self.link.step(now)
         interval = self.notifier.watchdog_interval
         if self.is_running() and interval and now >= self._next_watchdog:
             if self.healthy:
@@ -331,18 +352,18 @@ class Supervisor:
         how = worker.describe_exit()
         if worker.returncode in WORKER_CANNOT_BOOT_CODES:
             if self.is_starting():  # the first boot: retrying would not help
-                self._status(f"ROS worker pid {worker.pid} {how}: it cannot boot "
-                             f"(bad settings, or another ROS worker holds {self.cfg.runtime_dir}; "
+                self._status(f"{self.what} pid {worker.pid} {how}: it cannot boot "
+                             f"(bad settings, or another {self.what} holds {self.cfg.runtime_dir}; "
                              "see its message above); not restarting it", logging.ERROR)
                 return EXIT_CANNOT_BOOT
-            return self._schedule_restart(f"ROS worker pid {worker.pid} {how}: the restarted worker "
+            return self._schedule_restart(f"{self.what} pid {worker.pid} {how}: the restarted worker "
                                           "could not boot (see its message above)")
         if self.is_starting():
-            self._status(f"ROS worker pid {worker.pid} {how} before it was ready; not starting",
+            self._status(f"{self.what} pid {worker.pid} {how} before it was ready; not starting",
                          logging.ERROR)
             return EXIT_FAILURE
         what = "" if was_ready else " while booting"
-        return self._schedule_restart(f"ROS worker pid {worker.pid} {how}{what}")
+        return self._schedule_restart(f"{self.what} pid {worker.pid} {how}{what}")
 
     def _schedule_restart(self, reason: str) -> int | None:
         now = time.monotonic()
@@ -363,15 +384,15 @@ class Supervisor:
 
     def _kill_worker(self, reason: str) -> int | None:
         worker = self.worker
-        self._status(f"{reason}: killing ROS worker pid {worker.pid}", logging.ERROR)
+        self._status(f"{reason}: killing {self.what} pid {worker.pid}", logging.ERROR)
         worker.kill_group()
         try:
             worker.proc.wait(KILL_WAIT)
         except subprocess.TimeoutExpired:
-            log.error("ROS worker pid %d did not die after SIGKILL", worker.pid)
+            log.error("%s pid %d did not die after SIGKILL", self.what, worker.pid)
         self.worker = None
         self.worker_ready = False
-        return self._schedule_restart(f"ROS worker pid {worker.pid} killed")
+        return self._schedule_restart(f"{self.what} pid {worker.pid} killed")
 
     def _check_boot(self, now: float) -> int | None:
         worker = self.worker
@@ -384,30 +405,34 @@ class Supervisor:
             self._last_answer = time.monotonic()
             self._next_health = self._last_answer + self._health_interval
             if self.is_starting():
-                self._status(f"ROS worker pid {worker.pid} ready; starting gunicorn on {self.cfg.bind}")
+                self._status(f"{self.what} pid {worker.pid} ready; starting gunicorn on {self.cfg.bind}")
                 self._start_http()
             else:
-                self._status(f"ROS worker pid {worker.pid} ready again; gunicorn listening on "
-                             f"http://{self.cfg.bind}")
+                self._status(f"{self.what} pid {worker.pid} ready again; gunicorn listening on {self._url}")
             return None
         if info is not None:
-            log.warning("another ROS worker (pid %s) answers on %s; waiting for ours (pid %d)",
+            log.warning("another %s (pid %s) answers on %s; waiting for ours (pid %d)", self.what,
                         info.get("pid"), self.cfg.runtime_dir, worker.pid)
         if now >= self._boot_deadline:
-            reason = f"ROS worker pid {worker.pid} did not answer ping within {WORKER_BOOT_TIMEOUT:g} s"
+            reason = f"{self.what} pid {worker.pid} did not answer ping within {WORKER_BOOT_TIMEOUT:g} s"
             if self.is_starting():
                 self._status(reason + "; not starting", logging.ERROR)
                 return EXIT_FAILURE
             return self._kill_worker(reason)
         return None
 
+    @property
+    def _url(self) -> str:
+        return f"{'https' if self.cfg.tls_cert else 'http'}://{self.cfg.bind}"
+
     def _check_http(self, now: float) -> int | None:
-        if http_answers(self.cfg.bind):
+        if http_answers(self.cfg.bind, tls=bool(self.cfg.tls_cert)):
             self.state = RUNNING
-            text = (f"ROS worker pid {self.worker.pid} ready; gunicorn listening on "
-                    f"http://{self.cfg.bind}")
+            text = f"{self.what} pid {self.worker.pid} ready; gunicorn listening on {self._url}"
             log.info("%s", text)
             self.notifier.ready(text)
+            if self.link is not None:
+                self.link.start()
             if self.notifier.watchdog_interval:
                 self.notifier.watchdog()
                 self._next_watchdog = now + self.notifier.watchdog_interval
@@ -437,10 +462,10 @@ class Supervisor:
             silent = now - self._last_answer
             if silent >= self._threshold and int(silent) != self._silent_reported:
                 self._silent_reported = int(silent)
-                self._status(f"ROS worker pid {worker.pid} not answering for {int(silent)} s",
+                self._status(f"{self.what} pid {worker.pid} not answering for {int(silent)} s",
                              logging.WARNING)
             if silent >= grace:
-                return self._kill_worker(f"ROS worker pid {worker.pid} did not answer for {silent:.1f} s")
+                return self._kill_worker(f"{self.what} pid {worker.pid} did not answer for {silent:.1f} s")
             return None
         recovered = self._silent_reported or self._degraded_since is not None
         self._last_answer = now
@@ -448,16 +473,15 @@ class Supervisor:
         if (stats.get("executor") or {}).get("degraded"):
             if self._degraded_since is None:
                 self._degraded_since = now
-                self._status(f"ROS worker pid {worker.pid} degraded: a ROS task runs longer than "
+                self._status(f"{self.what} pid {worker.pid} degraded: a ROS task runs longer than "
                              f"{self.cfg.watchdog_threshold} ms", logging.WARNING)
             elif now - self._degraded_since >= grace:
-                return self._kill_worker(f"ROS worker pid {worker.pid} degraded for "
+                return self._kill_worker(f"{self.what} pid {worker.pid} degraded for "
                                          f"{now - self._degraded_since:.1f} s")
             return None
         self._degraded_since = None
         if recovered:
-            self._status(f"ROS worker pid {worker.pid} answering again; gunicorn listening on "
-                         f"http://{self.cfg.bind}")
+            self._status(f"{self.what} pid {worker.pid} answering again; gunicorn listening on {self._url}")
         return None
 
     # ---- stopping -------------------------------------------------------------------------
@@ -465,8 +489,10 @@ class Supervisor:
         if self.state == STOPPED:
             return
         self.state = STOPPING
-        self.notifier.stopping("stopping: HTTP first, then the ROS worker")
+        self.notifier.stopping(f"stopping: HTTP first, then the {self.what}")
         log.info("stopping")
+        if self.link is not None:
+            self.link.stop(self._stop_child)
         if self.http is not None:
             self._stop_child(self.http, signal.SIGTERM, self.cfg.shutdown_grace + 1.5)
         if self.worker is not None:

@@ -21,6 +21,24 @@ def ros_domain() -> int:
 
 
 @pytest.fixture
+def diag():
+    """``diag(node, namespace="/", rate=10)``: a real ``/diagnostics`` publisher (bench/diagpub.py), once the
+    gateway's subscription has matched it (no report is lost to discovery); stopped after the test."""
+    from bench.diagpub import DiagPub
+
+    started: list[DiagPub] = []
+
+    def make(node: str, namespace: str = "/", rate: float = 10) -> DiagPub:
+        pub = DiagPub(node, namespace, rate)
+        started.append(pub)
+        return pub.matched()
+
+    yield make
+    for pub in started:
+        pub.stop()
+
+
+@pytest.fixture
 def nodes():
     """ROS nodes (``RosNode``/``publisher``) appended here are stopped at the end of the test."""
     started: list = []

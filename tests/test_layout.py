@@ -48,6 +48,18 @@ def test_the_gate_itself_catches_an_offender():
     assert not IMPORTS_RCLPY.search("# rclpy is not imported here")
 
 
+IMPORTS_ZENOH = re.compile(r"^\s*(import|from)\s+zenoh\b", re.MULTILINE)
+
+
+def test_only_the_fleet_link_holds_a_zenoh_session():
+    """Zenoh (its Rust threads and callbacks) lives in the fleet-link process only (issue 34): never in a
+    gevent HTTP worker, never in the ROS worker, never in the supervisor itself."""
+    offenders = [str(p.relative_to(REPO)) for p in python_files("app", "rosworker", "supervisor", "ipc", "common")
+                 if IMPORTS_ZENOH.search(p.read_text()) and p.parent != REPO / "supervisor" / "fleet"]
+    assert not offenders, f"zenoh imported outside supervisor/fleet/: {offenders}"
+    assert IMPORTS_ZENOH.search("    import zenoh\n") and not IMPORTS_ZENOH.search("# zenoh is not imported")
+
+
 def test_gevent_stays_out_of_the_ros_worker_and_the_supervisor():
     """Only the HTTP workers use gevent (app/http_worker.py patches them after the fork).
 
@@ -97,7 +109,12 @@ def test_each_package_imports_only_the_packages_below_it():
 # FAMILY (app/core/family.py, rosworker/core/family.py).  It imports no other family (it reaches their
 # resources through the registries of core/), and what is shared (core/ and the like, and the process's
 # top modules: wsgi.py, main.py) imports no family: it finds them (discover()) and knows none by name.
-SHARED = {"app": {"core", "sse", "openapi", "ui"}, "rosworker": {"core", "ros"}}
+# app/auth/ and app/audit/ are shared: every request passes them (create_app installs them by name).
+SHARED = {"app": {"core", "sse", "openapi", "ui", "auth", "audit"}, "rosworker": {"core", "ros"}}
+# A mode of a process, not a family: the top modules pick it by name, and it may import the families named
+# here.  The fleet gateway (app/fleet/, issue 34) serves the faults family's stream and status rules over
+# its Zenoh link (issue 30: to become a registration the faults family offers).
+MODES = {"app": {"fleet": {"faults"}}, "rosworker": {}}
 
 
 def imported_modules(path, package: str) -> set[str]:
@@ -131,6 +148,8 @@ def family_imports(root, top: str) -> list[str]:
                 continue
             target = parts[1]
             if target in shared or target == own:
+                continue
+            if (own is None and target in MODES[top]) or target in MODES[top].get(own, ()):
                 continue
             who = "shared code" if own is None or own in shared else f"family {own}"
             offenders.append(f"{rel}: {who} imports family {target} ({name})")

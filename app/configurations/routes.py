@@ -10,7 +10,7 @@ The ROS worker does the ROS part (``rosworker/configurations/clients.py``): each
 parameter services, its timeout (503 ``x-medkit-ros2-node-unavailable``
 with Retry-After) and the record of each node's first-seen values, which is
 what "reset to the default" sets back.  Writes need ``allow_configurations``
-and, when one is set, the bearer token (``auth.py``).
+(and, like every write, the token and role of ``app/auth/`` and no lock in the way, ``app/locks/``).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ MAX_ARRAY = 100_000           # elements of an array value
 
 
 def authorize_configure() -> None:
-    """403 unless configurations may be changed; then the bearer token (``authorize_change``)."""
+    """403 unless configurations may be changed (``allow_configurations``)."""
     authorize_feature(config().allow_configurations, "Changing configurations", "--allow-configurations",
                       "enable PUT and DELETE on configurations")
 

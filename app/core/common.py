@@ -132,6 +132,16 @@ def node_names(entity: Entity, index: Any = None) -> list[str]:
     return sorted(fqns)
 
 
+def in_scope(fault: dict[str, Any], fqns: list[str]) -> bool:
+    """medkit's ``fault_in_source_scope``: every reporting source is one of ``fqns`` (:func:`node_names`) or
+    below one (the faults' scope; a recording's too, app/bulk_data/)."""
+    sources = fault.get("reporting_sources")
+    if not fqns or not isinstance(sources, list) or not sources:
+        return False
+    return all(isinstance(s, str) and any(s == f or s.startswith(f.rstrip("/") + "/") for f in fqns)
+               for s in sources)
+
+
 def lookup_owner(collection: str, entity_id: str) -> Entity:
     """The entity whose relation collection is asked for, or medkit's typed 400/404.
 

@@ -13,8 +13,8 @@ disallowed origin gets no CORS header at all: the browser then keeps the
 answer from the page.
 
 Preflights (``OPTIONS`` with ``Access-Control-Request-Method``) are answered
-for GET, PUT, POST and DELETE with the ``Authorization`` and ``Content-Type``
-headers, and cached by the browser for ``MAX_AGE`` seconds.  Every route
+for GET, PUT, POST and DELETE with the ``Authorization``, ``Content-Type`` and
+``X-Client-Id`` headers, and cached by the browser for ``MAX_AGE`` seconds.  Every route
 carries the headers, the event streams included, and so do error answers
 (a 429, a 503), whose ``Retry-After``, rate-limit and request-id headers a
 page may read (``Access-Control-Expose-Headers``).
@@ -29,7 +29,7 @@ from flask import Flask
 from common import settings
 
 METHODS = ["GET", "PUT", "POST", "DELETE"]
-ALLOW_HEADERS = ["Authorization", "Content-Type"]
+ALLOW_HEADERS = ["Authorization", "Content-Type", "X-Client-Id"]  # X-Client-Id: who holds a lock
 EXPOSE_HEADERS = ["X-Request-Id", "Retry-After", "X-RateLimit-Limit", "X-RateLimit-Remaining",
                   "X-RateLimit-Reset", "Location"]
 MAX_AGE = 600

@@ -65,9 +65,15 @@ IPC_ANSWERS: dict[str, tuple[int, str, str | None, int | None]] = {
     "parameter-failed": (500, "internal-error", None, None),
     # faults (app/faults/routes.py)
     "no-such-fault": (404, "resource-not-found", None, None),
+    "no-such-recording": (404, "resource-not-found", None, None),  # bulk data (rosworker/bulk_data/)
     # triggers (app/triggers/routes.py)
     "no-such-trigger": (404, "resource-not-found", None, None),
     "triggers-full": (503, "service-unavailable", None, 5),
+    # locks (app/locks/routes.py): medkit's lock_handlers.cpp to_sovd_error_code
+    "lock-conflict": (409, "invalid-request", None, None),
+    "lock-not-found": (404, "resource-not-found", None, None),
+    "lock-not-owner": (403, "forbidden", None, None),
+    "locks-full": (503, "service-unavailable", None, 5),
 }
 
 # HTTP status -> SOVD error_code for errors that Werkzeug raises.

@@ -33,7 +33,7 @@ from flask import Blueprint, Flask
 from common import families
 from ipc import counters
 
-NOT_FAMILIES = ("core", "sse", "openapi", "ui")
+NOT_FAMILIES = ("core", "sse", "openapi", "ui", "auth", "audit", "fleet")  # auth, audit: every request's; fleet: a mode
 EXTENSION = "sovd_families"   # app.extensions: the families create_app plugged in, in order
 
 

@@ -54,6 +54,8 @@ from .family import plugged
 BUCKETS = (0.00025, 0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0)
 METHODS = frozenset({"GET", "HEAD", "POST", "PUT", "DELETE", "PATCH", "OPTIONS"})
 UNMATCHED = "unmatched"
+# app.extensions[COLLECTORS]: what a family adds to a scrape (callables, each making a collector per scrape)
+COLLECTORS = "sovd_metrics_collectors"
 
 bp = Blueprint("metrics", __name__)
 
@@ -78,6 +80,11 @@ class HttpMetrics:
         self.frames_sent = Counter(streams["frames_sent"].metric, streams["frames_sent"].help, registry=None)
         self.frames_dropped = Counter(streams["frames_dropped"].metric, streams["frames_dropped"].help,
                                       registry=None)
+        # Every other counter the HTTP workers keep (ipc/counters.py, origin HTTP), e.g. the lock
+        # refusals of x-medkit-locks: one Counter each, by its declared name.
+        made = {"open_streams", "frames_sent", "frames_dropped"}
+        self.declared = {c.name: Counter(c.metric, c.help, registry=None)
+                         for c in counters.HTTP_COUNTERS if c.kind == counters.COUNTER and c.name not in made}
         self.rate_limited = Counter(
             "sovd_http_rate_limited", "Requests refused with 429 by the rate limiter, by the bucket "
             "that was empty (client or global)", ["scope"], registry=None)
@@ -98,7 +105,7 @@ class HttpMetrics:
 
     def families(self):
         for metric in (self.requests, self.latency, self.streams_open, self.frames_sent,
-                       self.frames_dropped, self.rate_limited):
+                       self.frames_dropped, self.rate_limited, *self.declared.values()):
             yield from metric.collect()
 
 
@@ -127,7 +134,8 @@ _stream_totals: tuple[float, dict[str, int]] = (float("-inf"), {})
 
 
 def stream_totals() -> dict[str, int]:
-    """``open_streams``, ``frames_sent``, ``frames_dropped`` of every HTTP worker (``/health``).
+    """``open_streams``, ``frames_sent``, ``frames_dropped`` (and every other counter of origin HTTP,
+    such as ``lock_refusals``) of every HTTP worker (``/health``).
 
     The sums a scrape makes (open streams of the live workers, frames of every worker since the
     gateway started), read from the multiprocess directory; without it (the Flask test client)
@@ -314,9 +322,12 @@ def metrics() -> Response:
         MultiProcessCollector(registry, path=path)
     else:
         registry.register(_ThisProcess())
-    registry.register(RosWorkerCollector(rosclient.get(), min(rosclient.STATS_TIMEOUT_S, cfg.ipc_timeout),
-                                         plugged(current_app)))
+    if not cfg.fleet_aggregate:  # the fleet gateway runs no ROS worker (app/fleet/)
+        registry.register(RosWorkerCollector(rosclient.get(), min(rosclient.STATS_TIMEOUT_S, cfg.ipc_timeout),
+                                             plugged(current_app)))
     registry.register(SupervisorCollector(cfg.runtime_dir))
+    for make in current_app.extensions.get(COLLECTORS, ()):
+        registry.register(make())
     return Response(generate_latest(registry), mimetype=None, content_type=CONTENT_TYPE_LATEST)
 
 

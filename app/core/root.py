@@ -24,18 +24,27 @@ SOVD_VERSION = openapi.SOVD_VERSION
 @bp.get("/")
 def root():
     cfg = config()
-    capabilities = {"discovery": True, "authentication": bool(cfg.api_token), "docs": True}
+    capabilities = {"discovery": True,
+                    "authentication": bool(cfg.auth_enabled or cfg.api_token),  # app/auth/ (the legacy api_token too)
+                    "tls": bool(cfg.tls_cert),  # app/gunicorn_conf.py
+                    "docs": True}
     for family in plugged(current_app):   # what each family serves (app/<family>/__init__.py)
         capabilities.update(family.capabilities(cfg))
     # medkit's features not served here: their routes answer 501 (core/unimplemented.py)
     capabilities.update(unimplemented.capabilities())
-    return json_response({
+    capabilities["aggregation"] = False  # the fleet gateway's is true (app/fleet/routes.py)
+    overview = {
         "name": NAME,
         "version": package_version(),
         "api_base": API_BASE,
         "endpoints": openapi.endpoint_list(),
         "capabilities": capabilities,
-    })
+    }
+    if cfg.auth_enabled:  # medkit's: only when authentication is on
+        overview["auth"] = {"enabled": True, "algorithm": cfg.jwt_algorithm, "require_auth_for": cfg.require_auth_for}
+    if cfg.tls_cert:
+        overview["tls"] = {"enabled": True, "min_version": cfg.tls_min_version}
+    return json_response(overview)
 
 
 @bp.get("/version-info")
@@ -99,7 +108,8 @@ def health():
     executor["worker_alive"] = alive
     # the cyclic subscriptions and triggers held (the ROS worker's), and the streams of every HTTP
     # worker, summed from their metrics (core/metrics.py), whatever the ROS worker does
-    streams = {**counters_section("streams")(stats, cfg), **metrics.stream_totals()}
+    streams = counters_section("streams")(stats, cfg)
+    streams.update({key: value for key, value in metrics.stream_totals().items() if key in streams})
     if not alive:
         status = "unhealthy"
     elif executor.get("degraded"):
@@ -111,4 +121,10 @@ def health():
     for family in plugged(current_app):
         for section in family.health:
             body[section.key] = section.build(stats, cfg)
+    for name, section in current_app.extensions.get(HEALTH_SECTIONS, {}).items():
+        body[name] = section()   # a section added outside the families (the fleet link's: app/fleet/)
     return json_response(body)
+
+
+# app.extensions[HEALTH_SECTIONS]: name -> callable, /health sections added outside the families (app/fleet/)
+HEALTH_SECTIONS = "sovd_health_sections"

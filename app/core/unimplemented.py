@@ -2,20 +2,16 @@
 
 medkit answers some of these with 501 when the provider behind them is not
 there (no update plugin, no scripts backend, no lifecycle provider for the
-transitions), and its handlers say so before they look at the entity.  Locks
-are another case: medkit turns locking on by default; this gateway has no
-locks yet (a later issue brings them), so it answers their routes 501 too.
-It answers the same way whatever the entity id: a client tells "not served
-here" (501) from "no such entity or route" (404).  Bulk data has no "not
-loaded" case in medkit (its handlers always serve it); it is answered 501 here
-for the same reason.
+transitions), and its handlers say so before they look at the entity.  It answers the same way
+whatever the entity id: a client tells "not served here" (501) from "no such entity or route"
+(404).  Locks (``app/locks/``, issue 31) and bulk data (``app/bulk_data/``, issue 32) are served.
 
 :data:`ROUTES` is the one table: the blueprint, the OpenAPI document
 (``app/openapi/__init__.py``) and the capabilities of ``GET /api/v1/``
 (``app/core/root.py``) are all made from it.  Nothing here talks to the ROS
-worker.  Operations, configurations, faults, logs, triggers and the lifecycle
-status (``GET .../status``, ``app/operations/status.py``) have routes of their own
-(``app/routes/``); medkit has no ``modes`` routes, so neither has this table.
+worker.  Operations, configurations, faults, logs, triggers, locks (``app/locks/``) and the
+lifecycle status (``GET .../status``, ``app/operations/status.py``) have routes of their own;
+medkit has no ``modes`` routes, so neither has this table.
 """
 
 from __future__ import annotations
@@ -35,8 +31,6 @@ class Feature(NamedTuple):
 
 
 FEATURES = {
-    "bulk-data": Feature("bulk_data", "Bulk Data", "Bulk data is not available on this gateway"),
-    "locks": Feature("locking", "Locking", "Locking is not enabled on this gateway"),
     "scripts": Feature("scripts", "Scripts", "Scripts backend not configured"),
     "lifecycle": Feature("lifecycle", "Lifecycle", "Lifecycle control not available for this entity"),
     "updates": Feature("updates", "Updates", "Software updates not available"),
@@ -53,36 +47,9 @@ class Route(NamedTuple):
 
 
 _APPS_COMPONENTS = ("apps", "components")
-_ALL = ("areas", "components", "apps", "functions")
 _TRANSITIONS = ("start", "restart", "force-restart", "shutdown", "force-shutdown")
 
 ROUTES: tuple[Route, ...] = (
-    Route("bulk-data", "GET", "/bulk-data", _ALL, "list{Kind}BulkDataCategories", "Bulk-data categories"),
-    Route("bulk-data", "GET", "/bulk-data/{category_id}", _ALL, "list{Kind}BulkDataDescriptors",
-          "Bulk-data files of a category"),
-    Route("bulk-data", "GET", "/bulk-data/{category_id}/{file_id}", _ALL, "download{Kind}BulkData",
-          "Download a bulk-data file"),
-    Route("bulk-data", "POST", "/bulk-data/{category_id}", _APPS_COMPONENTS, "upload{Kind}BulkData",
-          "Upload a bulk-data file"),
-    Route("bulk-data", "DELETE", "/bulk-data/{category_id}/{file_id}", _APPS_COMPONENTS, "delete{Kind}BulkData",
-          "Delete a bulk-data file"),
-    Route("bulk-data", "GET", "/subareas/{subarea_id}/bulk-data", ("areas",), "listSubareaBulkDataCategories",
-          "Bulk-data categories of a subarea"),
-    Route("bulk-data", "GET", "/subareas/{subarea_id}/bulk-data/{category_id}", ("areas",),
-          "listSubareaBulkDataDescriptors", "Bulk-data files of a subarea's category"),
-    Route("bulk-data", "GET", "/subareas/{subarea_id}/bulk-data/{category_id}/{file_id}", ("areas",),
-          "downloadSubareaBulkData", "Download a subarea's bulk-data file"),
-    Route("bulk-data", "GET", "/subcomponents/{subcomponent_id}/bulk-data", ("components",),
-          "listSubcomponentBulkDataCategories", "Bulk-data categories of a subcomponent"),
-    Route("bulk-data", "GET", "/subcomponents/{subcomponent_id}/bulk-data/{category_id}", ("components",),
-          "listSubcomponentBulkDataDescriptors", "Bulk-data files of a subcomponent's category"),
-    Route("bulk-data", "GET", "/subcomponents/{subcomponent_id}/bulk-data/{category_id}/{file_id}",
-          ("components",), "downloadSubcomponentBulkData", "Download a subcomponent's bulk-data file"),
-    Route("locks", "POST", "/locks", _APPS_COMPONENTS, "acquire{Kind}Lock", "Acquire a lock"),
-    Route("locks", "GET", "/locks", _APPS_COMPONENTS, "list{Kind}Locks", "List locks"),
-    Route("locks", "GET", "/locks/{lock_id}", _APPS_COMPONENTS, "get{Kind}Lock", "One lock"),
-    Route("locks", "PUT", "/locks/{lock_id}", _APPS_COMPONENTS, "extend{Kind}Lock", "Extend a lock"),
-    Route("locks", "DELETE", "/locks/{lock_id}", _APPS_COMPONENTS, "release{Kind}Lock", "Release a lock"),
     Route("scripts", "POST", "/scripts", _APPS_COMPONENTS, "upload{Kind}Script", "Upload a diagnostic script"),
     Route("scripts", "GET", "/scripts", _APPS_COMPONENTS, "list{Kind}Scripts", "List diagnostic scripts"),
     Route("scripts", "GET", "/scripts/{script_id}", _APPS_COMPONENTS, "get{Kind}Script", "One script"),

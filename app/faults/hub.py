@@ -24,16 +24,17 @@ stream's (the stall cut, the keep-alive, the counters).
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from typing import Any
 
 import orjson
-from flask import Flask
+from flask import Flask, request
 
 from ipc import events, protocol
 from ipc.errors import IpcError
 
 from ..core import rosclient
+from ..core.errors import ApiError
 from ..sse import hub as sse
 from ..sse.hub import Hub
 from ..sse.stream import Stream
@@ -134,12 +135,15 @@ def setup(app: Flask) -> None:
     sse.register(app, NAME, make)
 
 
-def open_streams() -> int:
-    """This process's open fault streams (``max_fault_streams`` is a cap per HTTP worker)."""
-    return len(sse.hub_of(NAME).streams)
+def response(name: str, max_streams: int):
+    """The answer to ``GET .../faults/stream`` from the hub registered as ``name`` (a :class:`FaultHub`):
+    503 past ``max_streams`` open streams of this process, else the stream, after a ``Last-Event-ID``.
 
-
-def body(last_id: int, environ: dict[str, Any]) -> Iterator[bytes]:
-    """The body of one ``/faults/stream`` response (nothing happens until it is iterated)."""
-    return sse.response_body(NAME, lambda hub, sock, framed: hub.stream(last_id, sock, framed).body(
-        hub.opening, OPEN), environ)
+    Also the fleet gateway's (``app/fleet/routes.py``), with its own hub (its link's events and replay)."""
+    if len(sse.hub_of(name).streams) >= max_streams:
+        raise ApiError(503, "service-unavailable", "Maximum number of SSE clients reached. Please try again later.",
+                       {"max_fault_streams": max_streams}, headers={"Retry-After": "5"})
+    raw = request.headers.get("Last-Event-ID", "").strip()
+    last_id = int(raw) if raw.isdigit() and len(raw) <= 18 else 0
+    return sse.response(sse.response_body(name, lambda hub, sock, framed: hub.stream(last_id, sock, framed).body(
+        hub.opening, OPEN), request.environ))

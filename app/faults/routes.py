@@ -13,7 +13,7 @@ these routes ask it for them and apply medkit's rules here:
   to an app, component or function when *every* one of its reporting sources is
   one of the entity's nodes (or below one: ``/a/b`` is below ``/a``).  A fault
   out of scope is "not found" there.
-- Clearing (DELETE) is a write: ``allow_fault_clear`` and the bearer token.
+- Clearing (DELETE) is a write: ``allow_fault_clear`` (and the role and locks every write passes).
 - ``GET /api/v1/faults/stream``: Server-Sent Events (``hub.py``).
 """
 
@@ -24,12 +24,10 @@ from typing import Any
 
 from flask import Blueprint, current_app, request
 
-from ..core.auth import authorize_change
-from ..core.common import config, json_response, lookup, node_names
+from ..core.common import config, in_scope, json_response, lookup, node_names
 from ..core.entities import API_BASE, PARAM_NAMES, Entity
 from ..core.errors import ApiError
 from ..core.roscall import ros_call
-from ..sse import hub as sse
 from ..sse.stream import rfc3339
 from . import hub
 
@@ -78,15 +76,6 @@ def _list(statuses: tuple[str, ...]) -> list[dict[str, Any]]:
     return _call("fault_list", {"statuses": list(statuses)}).get("items") or []
 
 
-def in_scope(fault: dict[str, Any], fqns: list[str]) -> bool:
-    """medkit's ``fault_in_source_scope``: every reporting source is one of ``fqns`` or below one."""
-    sources = fault.get("reporting_sources")
-    if not fqns or not isinstance(sources, list) or not sources:
-        return False
-    return all(isinstance(s, str) and any(s == f or s.startswith(f.rstrip("/") + "/") for f in fqns)
-               for s in sources)
-
-
 def _check_code(code: str) -> None:
     if not code or len(code) > CODE_MAX:
         raise ApiError(400, "invalid-parameter", "Invalid fault code",
@@ -97,7 +86,6 @@ def _authorize_clear() -> None:
     if not config().allow_fault_clear:
         raise ApiError(403, "forbidden", "Clearing faults is disabled on this gateway",
                        {"details": "start the gateway with --allow-fault-clear to enable DELETE .../faults"})
-    authorize_change()
 
 
 def _scoped_fault(collection: str, entity: Entity, code: str) -> dict[str, Any]:
@@ -123,6 +111,19 @@ def _status_object(status: str) -> dict[str, str]:
             "confirmedDTC": "1" if confirmed else "0", "pendingDTC": "1" if pending else "0"}
 
 
+def _recording(frame: dict[str, Any], entity_path: str) -> dict[str, Any]:
+    """A fault recording (rosworker/bulk_data/) as medkit's rosbag snapshot, its URI under the entity asked."""
+    out: dict[str, Any] = {"type": "rosbag", "name": frame.get("name", ""),
+                           "bulk_data_uri": f"{entity_path}/bulk-data/rosbags/{frame.get('bulk_data_id', '')}",
+                           "size_bytes": frame.get("size_bytes", 0), "duration_sec": frame.get("duration_sec", 0.0),
+                           "format": frame.get("format", "mcap")}
+    ext: dict[str, Any] = {"topics": frame.get("topics") or [], "messages": frame.get("messages", 0)}
+    if frame.get("captured_at_ns"):
+        ext["captured_at"] = rfc3339(int(frame["captured_at_ns"])).decode()
+    out["x-medkit"] = ext
+    return out
+
+
 def _snapshot(frame: dict[str, Any]) -> dict[str, Any]:
     topic, message_type = frame.get("topic", ""), frame.get("message_type", "")
     out: dict[str, Any] = {"type": frame.get("type", "freeze_frame"), "name": frame.get("name", "")}
@@ -143,8 +144,8 @@ def _snapshot(frame: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def detail(answer: dict[str, Any]) -> dict[str, Any]:
-    """medkit's ``build_sovd_fault_response``."""
+def detail(answer: dict[str, Any], entity_path: str = "") -> dict[str, Any]:
+    """medkit's ``build_sovd_fault_response``; ``entity_path`` (``/apps/x``) leads its recordings' URIs."""
     fault = answer["fault"]
     item: dict[str, Any] = {"code": fault["fault_code"]}
     if fault.get("description"):
@@ -159,7 +160,8 @@ def detail(answer: dict[str, Any]) -> dict[str, Any]:
             "environment_data": {
                 "extended_data_records": {"first_occurrence": rfc3339(answer["first_ns"]).decode(),
                                           "last_occurrence": rfc3339(answer["last_ns"]).decode()},
-                "snapshots": [_snapshot(s) for s in answer.get("snapshots") or [] if isinstance(s, dict)]},
+                "snapshots": [_recording(s, entity_path) if s.get("type") == "rosbag" else _snapshot(s)
+                              for s in answer.get("snapshots") or [] if isinstance(s, dict)]},
             "x-medkit": ext}
 
 
@@ -188,12 +190,7 @@ def clear_all_global():
 @bp.get("/faults/stream")
 def stream():
     cfg = config()
-    if hub.open_streams() >= cfg.max_fault_streams:
-        raise ApiError(503, "service-unavailable", "Maximum number of SSE clients reached. Please try again later.",
-                       {"max_fault_streams": cfg.max_fault_streams}, headers={"Retry-After": "5"})
-    raw = request.headers.get("Last-Event-ID", "").strip()
-    last_id = int(raw) if raw.isdigit() and len(raw) <= 18 else 0
-    return sse.response(hub.body(last_id, request.environ))
+    return hub.response(hub.NAME, cfg.max_fault_streams)
 
 
 # ---- an entity's faults ---------------------------------------------------------------------------------
@@ -232,7 +229,7 @@ def clear_entity(collection: str, entity_id: str):
 def get_one(collection: str, entity_id: str, fault_code: str):
     entity = lookup(collection, entity_id)
     _check_code(fault_code)
-    return json_response(detail(_scoped_fault(collection, entity, fault_code)))
+    return json_response(detail(_scoped_fault(collection, entity, fault_code), f"/{collection}/{entity.id}"))
 
 
 @bp.delete(ENTITY + "/faults/<fault_code>")

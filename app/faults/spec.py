@@ -44,13 +44,24 @@ SCHEMAS: dict[str, Any] = {
             extended_data_records=oa.obj(["first_occurrence", "last_occurrence"],
                                        first_occurrence={**oa.STR, "format": "date-time"},
                                        last_occurrence={**oa.STR, "format": "date-time"}),
-            snapshots={"type": "array", "maxItems": 8, "items": oa.obj(
-                ["type", "name", "data", "x-medkit"], type={"const": "freeze_frame"}, name=oa.STR,
-                data={"description": "the status's values (name: value), or a topic's message (its primary "
-                                     "field for the common std_msgs/sensor_msgs types)"},
-                X_medkit=oa.obj(["topic", "message_type"], topic=oa.STR, message_type=oa.STR, full_data={},
-                              captured_at={**oa.STR, "format": "date-time"}, parse_error=oa.STR,
-                              truncated_bytes=oa.INT, error=oa.STR))}),
+            snapshots={"type": "array", "description": "at most 8 freeze frames, then the fault's recordings "
+                                                       "(newest first, fault_rosbag_max_bags_per_fault)",
+                       "items": {"oneOf": [oa.obj(
+                           ["type", "name", "data", "x-medkit"], type={"const": "freeze_frame"}, name=oa.STR,
+                           data={"description": "the status's values (name: value), or a topic's message (its "
+                                                "primary field for the common std_msgs/sensor_msgs types)"},
+                           X_medkit=oa.obj(["topic", "message_type"], topic=oa.STR, message_type=oa.STR, full_data={},
+                                           captured_at={**oa.STR, "format": "date-time"}, parse_error=oa.STR,
+                                           truncated_bytes=oa.INT, error=oa.STR)),
+                           # a recording (the bulk-data family's, added through the fault_snapshots extension)
+                           oa.obj(["type", "name", "bulk_data_uri", "size_bytes", "duration_sec", "format"],
+                                  type={"const": "rosbag"}, name=oa.STR,
+                                  bulk_data_uri={**oa.STR, "description": "the recording under the entity asked "
+                                                                          "(`/apps/x/bulk-data/rosbags/<id>`, no "
+                                                                          "API base)"},
+                                  size_bytes=oa.INT, duration_sec={"type": "number"}, format={"const": "mcap"},
+                                  X_medkit=oa.obj([], captured_at={**oa.STR, "format": "date-time"},
+                                                  topics=oa.STR_LIST, messages=oa.INT))]}}),
         X_medkit=oa.obj(["occurrence_count", "severity_label", "status_raw"], occurrence_count=oa.INT,
                       reporting_sources=oa.STR_LIST, severity_label={"enum": ["INFO", "WARN", "ERROR", "CRITICAL"]},
                       status_raw=FAULT_STATUS)),

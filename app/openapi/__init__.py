@@ -14,11 +14,15 @@ tree (``GET /{collection}/docs`` and below, medkit's ``docs`` capability).
 
 from __future__ import annotations
 
+from copy import deepcopy
 from functools import lru_cache
 from typing import Any
 
+from ..audit import doc as audit_doc
+from ..auth import doc as auth_doc
 from ..core.entities import API_BASE, PARAM_NAMES
 from ..core.family import discover
+from ..core.target import LOCK_SCOPES
 from . import core
 from .build import GENERIC_ERROR
 
@@ -44,18 +48,28 @@ def _document() -> dict[str, Any]:
                 if section.required:
                     health["required"].append(section.key)
     paths.update(core.last_paths())
+    # who is acting (issue 31, app/auth/ and app/audit/, on every request): their own parts, then what the
+    # token, role and lock checks add to every operation
+    schemas["RootOverview"] = deepcopy(schemas["RootOverview"])
+    for part in (auth_doc, audit_doc):
+        paths.update(part.paths())
+        schemas.update(part.SCHEMAS)
+    auth_doc.amend(schemas)
+    auth_doc.secure(paths, LOCK_SCOPES)
     return {
         "openapi": "3.1.0",
         "info": {"title": "sovd-gateway", "version": "1.0.0", "x-sovd-version": SOVD_VERSION,
                  "description": "SOVD REST gateway for ROS 2: discovery and live topic data."},
         "jsonSchemaDialect": "https://json-schema.org/draft/2020-12/schema",
         "servers": [{"url": API_BASE}],
-        "tags": [*tags, *core.UNIMPLEMENTED_TAGS],
+        "tags": [*tags, *core.UNIMPLEMENTED_TAGS, auth_doc.TAG, audit_doc.TAG],
         "paths": paths,
         "components": {
             "schemas": schemas, "responses": {"GenericError": GENERIC_ERROR},
-            "securitySchemes": {"bearerAuth": {"type": "http", "scheme": "bearer",
-                                               "description": "required for PUT when an API token is set"}},
+            "securitySchemes": {"bearerAuth": {"type": "http", "scheme": "bearer", "bearerFormat": "JWT",
+                                               "description": "an access token of POST /auth/authorize (or the "
+                                                              "legacy api_token): for writes under "
+                                                              "require_auth_for=write, for every request under all"}},
         },
     }
 

@@ -4,7 +4,7 @@ The contract is medkit's (``operation_handlers.cpp``).  Every client and goal
 lives in the ROS worker (``rosworker/operations/commands.py``); this module finds the
 operations of an entity (``op_list`` over the nodes of its apps), names them by
 medkit's id rules, and forwards calls, goals and cancels.  Executing and
-cancelling are writes: ``allow_operations`` and the bearer token.
+cancelling are writes: ``allow_operations`` (and the role and locks every write passes).
 
 Ids (medkit's): a short name only one member exposes is used bare; when several
 members of a component or function expose it, ``<member_id>:<name>``; when one

@@ -110,10 +110,14 @@ class Subscriber:
         for key in self.KEYS:
             self.confirmations.expect(key)
         self._monitor = sock.get_monitor_socket(zmq.EVENT_CONNECTED | zmq.EVENT_DISCONNECTED)
-        sock.connect(events.endpoint(self.runtime_dir))
+        sock.connect(self.endpoint())
         self._sock = sock
         self.heartbeat = time.monotonic()  # a grace period for the first heartbeat
         self._greenlets = [gevent.spawn(self._read), *(gevent.spawn(loop) for loop in self.loops())]
+
+    def endpoint(self) -> str:
+        """The XPUB this hub reads: the ROS worker's (the fleet link's for the fleet gateway, app/fleet/)."""
+        return events.endpoint(self.runtime_dir)
 
     def loops(self) -> list:
         return []

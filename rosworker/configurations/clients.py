@@ -23,9 +23,11 @@ it has its clients, the node's services have ``parameter_service_timeout`` to
 be matched, and the node as much again from the operation's first request to
 answer (a read unanswered for ``RESEND_AFTER`` s is sent again: a new client's
 first reply can be lost before the server has matched it); past either the
-node is answered ``node-unavailable`` and remembered for
-``parameter_negative_cache_s``, so a hung node costs one request its timeout
-and the next ones nothing (medkit's issues 318 and 531).  A node whose services
+node is answered ``node-unavailable``.  A node that was asked and did not
+answer is remembered for ``parameter_negative_cache_s``, so a hung node costs
+one request its timeout and the next ones nothing (medkit's issues 318 and
+531); one whose services were not matched in time (just started, a loaded
+machine) is not, or it would be refused that long right after its start.  A node whose services
 are not in the graph is answered at once.
 
 Defaults: ROS 2 has no "default" service.  The first time an operation reaches a
@@ -419,14 +421,18 @@ class ParameterClients:
 
     def _timed_out(self, op: Op) -> None:
         self.stats.parameter_timeouts += 1
-        self._unavailable[op.fqn] = (time.monotonic() + self.negative_cache_s, self.start_key(op.fqn))
-        what = "did not respond" if op.sent else "was not available"
-        log.warning("parameter service of %s %s within %g s (answered at once for %g s)", op.fqn, what,
-                    self.timeout, self.negative_cache_s)
+        if op.sent:  # it was asked and did not answer (hung): remembered, so the next requests cost nothing
+            self._unavailable[op.fqn] = (time.monotonic() + self.negative_cache_s, self.start_key(op.fqn))
+            log.warning("parameter service of %s did not respond within %g s (answered at once for %g s)",
+                        op.fqn, self.timeout, self.negative_cache_s)
+            what, retry = "did not respond", max(1, math.ceil(self.negative_cache_s))
+        else:  # its services were not matched yet (a node just started, a loaded machine): not remembered,
+            # or a node read at once after its start would be refused for parameter_negative_cache_s
+            log.warning("parameter services of %s were not matched within %g s", op.fqn, self.timeout)
+            what, retry = "was not available", 2
         self._finish(op, IpcError("node-unavailable",
                                   f"Parameter service {what} for node: {op.fqn} (within {self.timeout:g} s)",
-                                  {"node": op.fqn, "timeout_s": self.timeout,
-                                   "retry_after_s": max(1, math.ceil(self.negative_cache_s))}))
+                                  {"node": op.fqn, "timeout_s": self.timeout, "retry_after_s": retry}))
 
     def _finish(self, op: Op, result: Any) -> None:
         if op not in self._ops:

@@ -54,6 +54,7 @@ from .samplers import SamplerRegistry
 from .state import RestartState
 from .stats import Stats
 from .store import Store
+from .topics import SharedTopics
 
 log = logging.getLogger("sovd.rosworker.core")
 
@@ -95,7 +96,12 @@ class Core:
     - ``store``: the state dir's SQLite store (``core/store.py``), ``restart_state``
       (``core/state.py``);
     - ``samplers`` (``core/samplers.py``) and ``notifier`` (``core/notifier.py``): what other
-      families may stream and observe of a family's resources.
+      families may stream and observe of a family's resources;
+    - ``shared_topics`` (``core/topics.py``): subscriptions a family owns that the data family's
+      pool reads through;
+    - :meth:`extend` / :meth:`extensions`: the extension points a family offers by name (its
+      docstring says what is added there: the faults family's ``fault_confirmed`` and
+      ``fault_snapshots``).
     """
 
     def __init__(self, cfg: Any, node: Any, zctx: zmq.Context, executor: RosExecutor, stats: Stats,
@@ -114,6 +120,8 @@ class Core:
         self.restart_state = RestartState(cfg.runtime_dir, post=executor.post)
         self.samplers = SamplerRegistry()
         self.notifier = ChangeNotifier()
+        self.shared_topics = SharedTopics()
+        self._extensions: dict[str, list[Callable[..., Any]]] = {}
         self.commands: dict[str, Callable[[Task], None]] = {"graph": self.graph.command}
         if cfg.debug_commands:
             self.commands["debug_sleep"] = _debug_sleep
@@ -130,6 +138,14 @@ class Core:
         """``fn()`` once every family has started, discovery has settled and the graph was polled once,
         before the sockets are bound (restoring what refers to other families' resources)."""
         self._started.append(fn)
+
+    def extend(self, point: str, fn: Callable[..., Any]) -> None:
+        """Add ``fn`` to the extension point ``point`` that another family offers (any start order)."""
+        self.extensions(point).append(fn)
+
+    def extensions(self, point: str) -> list[Callable[..., Any]]:
+        """What was added to ``point``: a live list, which the family that offers it keeps and calls."""
+        return self._extensions.setdefault(point, [])
 
     # ---- main.py's --------------------------------------------------------------------------------
     def open(self) -> None:

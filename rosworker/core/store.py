@@ -39,6 +39,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from common.statedir import make_private_dir, private_files
+
 from .writer import LatestWriter
 
 log = logging.getLogger("sovd.rosworker.store")
@@ -46,8 +48,6 @@ log = logging.getLogger("sovd.rosworker.store")
 FILE_NAME = "faults.db"
 RETRY_AFTER = 1.0          # seconds before a failed write is tried again
 BUSY_TIMEOUT = 5.0         # seconds sqlite waits for a lock (only this process writes)
-FILE_MODE = 0o600          # the store's files: the service user's alone
-DIR_MODE = 0o700           # a state directory the gateway makes
 
 
 @dataclass(frozen=True)
@@ -272,23 +272,3 @@ def _text(doc: Any) -> str:
     if isinstance(doc, str):
         return doc
     return json.dumps(doc, separators=(",", ":"))
-
-
-def make_private_dir(path: str) -> None:
-    """``path`` made 0700 if it is not there (its parents as the umask says); one that is stays as it is."""
-    if not os.path.isdir(path):
-        os.makedirs(path, exist_ok=True)
-        os.chmod(path, DIR_MODE)
-
-
-def private_files(path: str) -> None:
-    """The database file made 0600 before SQLite opens it (SQLite gives its -wal and -shm the file's
-    mode), and an existing file, -wal or -shm of a looser mode narrowed to 0600."""
-    fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, FILE_MODE)
-    os.close(fd)
-    for name in (path, path + "-wal", path + "-shm"):
-        try:
-            if os.stat(name).st_mode & 0o777 != FILE_MODE:
-                os.chmod(name, FILE_MODE)
-        except FileNotFoundError:
-            pass

@@ -42,6 +42,9 @@ class Data(Family):
         self.publishers = PublisherPool(core.node, core.executor, core.stats, pool, core.endpoints,
                                         cfg.max_publishers, cfg.idle_safety_net, cfg.publish_match_wait)
         core.graph.on_change(pool.check_graph)
+        # topics another family subscribes already (bulk data's recorded ones): read through theirs
+        pool.shared_subscription = core.shared_topics.get
+        core.shared_topics.attach(pool)
         # A look at each topic that callers wait on (its first message) on every round of the loop.
         core.executor.watch_cold(pool.cold_entries, pool.on_ready)
         if cfg.idle_safety_net:

@@ -25,6 +25,13 @@ then whole entries.
 The gateway's own endpoints (its subscriptions here, its publishers for PUT)
 never count as a topic's publishers or subscribers (``core/endpoints.py``).
 
+A topic the gateway records for its faults (``rosworker/bulk_data/recorder.py``) is not
+subscribed twice: ``shared_subscription`` (the recorder's hook, None when nothing is
+recorded) gives the recorded subscription, which an entry reads through as through its
+own (its ``take_message`` drains the recording's queue and hands over the newest message
+not taken yet).  The recorder owns it: the pool never re-subscribes or destroys it
+(:meth:`TopicPool.adopt`, :meth:`TopicPool.unshare`).
+
 Evictions: graph change (no publisher left, or the type changed), LRU at
 the cap (never an entry somebody waits on: when every entry has waiters, a
 new topic is refused with ``pool-busy``), the byte budget, idle sweep,
@@ -37,6 +44,7 @@ from __future__ import annotations
 import collections
 import logging
 import time
+from collections.abc import Callable
 from typing import Any
 
 from rclpy.serialization import deserialize_message
@@ -109,6 +117,8 @@ class TopicPool:
         self.undecodable: collections.OrderedDict[str, str] = collections.OrderedDict()  # topic -> type
         self.nbytes = 0
         self.closing = False
+        # (topic, type or None) -> the recorded subscription of that topic, or None (rosworker/bulk_data/)
+        self.shared_subscription: Callable[[str, str | None], Any] | None = None
         stats.pool_bytes_cap = max_pool_bytes
 
     # ---- reads --------------------------------------------------------------------------
@@ -172,9 +182,12 @@ class TopicPool:
         return {"topic": topic, "type": entry.type_name, "status": "pooled"}
 
     def own_subscription_qos(self, topic: str):
-        """The QoSProfile of the pool's own subscription to ``topic``, or None."""
+        """The QoSProfile of the gateway's subscription to ``topic`` (the pool's, or the recorded one), or None."""
         entry = self.entries.get(topic)
-        return entry.profile if entry is not None and entry.sub is not None else None
+        if entry is not None and entry.sub is not None and entry.profile is not None:
+            return entry.profile
+        shared = self.shared_subscription(topic, None) if self.shared_subscription is not None else None
+        return shared.profile if shared is not None else None
 
     def restart_topics(self) -> list[str]:
         """Pooled topics worth subscribing to again after a restart: not the undecodable ones."""
@@ -341,7 +354,12 @@ class TopicPool:
         return entry, "pooled"
 
     def _subscribe(self, entry: Entry, infos: list) -> tuple[Any, Any]:
-        """A new subscription for ``entry`` with QoS matched to ``infos``; raises IpcError."""
+        """A new subscription for ``entry`` with QoS matched to ``infos`` (or the recorded one, and no
+        profile of its own); raises IpcError."""
+        if self.shared_subscription is not None:
+            shared = self.shared_subscription(entry.topic, entry.type_name)
+            if shared is not None:
+                return shared, None
         profile = qos.match_qos(infos)
         try:
             sub = self.node.create_subscription(entry.cls, entry.topic, _never_called, profile)
@@ -409,11 +427,31 @@ class TopicPool:
         log.debug("evicted %s (%s)", entry.topic, reason)
 
     def _destroy(self, sub, topic: str) -> None:
-        if sub is not None:
+        if sub is not None and not getattr(sub, "shared", False):  # a recorded one is the recorder's
             try:
                 self.node.destroy_subscription(sub)
             except Exception:
                 log.exception("destroying the subscription of %s failed", topic)
+
+    def adopt(self, topic: str) -> None:
+        """``topic`` has a recorded subscription now: a pooled entry of its type reads through it and
+        its own subscription goes (one subscription per topic)."""
+        entry = self.entries.get(topic)
+        if entry is None or entry.sub is None or self.shared_subscription is None:
+            return
+        shared = self.shared_subscription(topic, entry.type_name)
+        if shared is None or entry.sub is shared:
+            return
+        old, entry.sub, entry.profile = entry.sub, shared, None
+        entry.matched = shared.handle.get_publisher_count()
+        self._destroy(old, topic)
+
+    def unshare(self, topic: str) -> None:
+        """The recorded subscription of ``topic`` goes: an entry reading through it is dropped (the next
+        read subscribes again)."""
+        entry = self.entries.get(topic)
+        if entry is not None and getattr(entry.sub, "shared", False):
+            self.evict(entry, "graph")
 
     def evict_topic(self, topic: str) -> bool:
         entry = self.entries.get(topic)
@@ -458,8 +496,8 @@ class TopicPool:
         entry.publisher_count = len(infos)
         entry.subscriber_count = self.endpoints.subscriber_count(entry.topic)
         same_type = [i for i in infos if i.topic_type == entry.type_name]
-        if qos.key(qos.match_qos(same_type)) != qos.key(entry.profile):
-            self._rebuild(entry, same_type)
+        if entry.profile is not None and qos.key(qos.match_qos(same_type)) != qos.key(entry.profile):
+            self._rebuild(entry, same_type)  # a recorded subscription (no profile) is the recorder's
 
     def _rebuild(self, entry: Entry, infos: list) -> None:
         """Recreate the subscription with QoS matched to the current publishers.

@@ -4,7 +4,9 @@
 - ``model.py``: statuses, codes, medkit's fault body; ``sources.py``: who reported a status;
 - ``snapshots.py``: freeze frames (the data family's topics, through the core's samplers);
 - ``store.py``: the faults and their events in the store; ``left.py``: faults left by absent nodes;
-- ``observable.py``: the ``faults`` collection for observers (triggers; bulk data on confirmation);
+- ``observable.py``: the ``faults`` collection for observers (triggers);
+
+Its extension points (``core.extend``): ``fault_confirmed`` fn(code, sources), ``fault_snapshots`` fn(code) -> list.
 - ``commands.py``: ``fault_list``, ``fault_get``, ``fault_clear``, ``fault_events``.
 """
 
@@ -32,6 +34,10 @@ class Faults(Family):
         # faults left in the store by nodes that are not on the graph: said in the log and /health
         LeftFaults(manager, core.graph, core.stats, core.executor, check_after=check_delay(cfg.fault_stale_s)).start()
         core.notifier.provide("faults", manager.observable)
+        # extension points (core/family.py Core.extend): fn(code, sources) on each confirmation, and
+        # fn(code) -> the fault's extra snapshots in fault_get (bulk data's recordings)
+        manager.on_confirmed = core.extensions("fault_confirmed")
+        manager.snapshot_sources = core.extensions("fault_snapshots")
         self.commands = commands.handlers(manager)
 
     def shutdown(self) -> None:

@@ -144,6 +144,11 @@ class FaultManager:
         # faults as an observable collection (triggers; core/notifier.py): told of every fault event
         self.observable = FaultObservable(stats)
         self.left: dict[str, Any] = {}  # /health's counts of the faults left by absent nodes (left.py)
+        # the extension points "fault_confirmed" and "fault_snapshots" (core/family.py Core.extend; the
+        # faults family hands their lists here): fn(code, sources) told of each confirmation, and
+        # fn(code) -> a fault's extra snapshots (bulk data's recordings: type rosbag, newest first)
+        self.on_confirmed: list[Callable[[str, list[str]], None]] = []
+        self.snapshot_sources: list[Callable[[str], list[dict[str, Any]]]] = []
         self.publish_stats()
 
     # ---- set-up (ROS thread, before the loop) -------------------------------------------------------
@@ -353,6 +358,8 @@ class FaultManager:
         record["snapshots"] = self.frames.take(record, self.values.get(record["code"]), wall, stale)
         self._event("fault_confirmed", record)
         self._write(record["code"])
+        for fn in self.on_confirmed:  # e.g. bulk data: what led up to it is recorded
+            self.executor.guarded("the fault's confirmation hook", fn, record["code"], list(record["sources"]))
 
     def _room(self) -> bool:
         """Room for one more fault: the oldest healed or cleared one goes at ``max_faults``."""
@@ -430,7 +437,10 @@ class FaultManager:
         record = self.faults.get(code)
         if record is None:
             raise IpcError("no-such-fault", "Fault not found", {"fault_code": code[:CODE_MAX]})
-        return {"fault": public(record), "snapshots": list(record["snapshots"]),
+        snapshots = list(record["snapshots"])
+        for fn in self.snapshot_sources:  # e.g. its recordings (bulk data), as medkit lists them
+            snapshots += fn(code)
+        return {"fault": public(record), "snapshots": snapshots,
                 "first_ns": record["first_ns"], "last_ns": record["last_ns"]}
 
     def clear(self, codes: list[str]) -> list[str]:

@@ -34,7 +34,7 @@ def test_writes_are_off_by_default(fw):
 def test_writes_need_the_token(client, fw):
     r = client.put(URL, json={"data": 1})
     assert r.status_code == 401 and r.headers["WWW-Authenticate"].startswith("Bearer")
-    assert client.delete(URL, headers={"Authorization": "Bearer not-the-token-at-all"}).status_code == 403
+    assert client.delete(URL, headers={"Authorization": "Bearer not-the-token-at-all"}).status_code == 401
     assert param_calls(fw) == []
 
 

@@ -6,7 +6,10 @@ be documented for its operation (or fall under ``default``).
 
 from __future__ import annotations
 
+import io
+import os
 import re
+import tempfile
 
 import jsonschema
 import pytest
@@ -74,7 +77,8 @@ def check(doc, method: str, path: str, response) -> str:
         assert response.data == b"", f"{key} {status} has a body"
         return key
     if "application/json" not in spec["content"]:  # text (the metrics)
-        assert any(response.headers["Content-Type"].startswith(kind) for kind in spec["content"]), key
+        binary = all(c["schema"].get("format") == "binary" for c in spec["content"].values())  # a file's own type
+        assert binary or any(response.headers["Content-Type"].startswith(kind) for kind in spec["content"]), key
         return key
     schema = spec["content"]["application/json"]["schema"]
     assert response.headers["Content-Type"] == "application/json"
@@ -82,6 +86,71 @@ def check(doc, method: str, path: str, response) -> str:
     errors = sorted(validator.iter_errors(response.get_json()), key=str)
     assert not errors, f"{key} {status}: " + "; ".join(e.message for e in errors[:5])
     return key
+
+
+def _exercise_bulk_data(doc, fw, seen: dict, auth: dict) -> None:
+    """Bulk data (issue 32): every route and its statuses, a recording on disk as the ROS worker lists it
+    (the real recordings: tests/system/test_bulk_data.py)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        bag = os.path.join(tmp, "fault_HOT_1.mcap")
+        with open(bag, "wb") as fh:
+            fh.write(b"\x89MCAP0\r\n" + bytes(range(256)))
+        recording = {"id": "fault_HOT_1", "format": "mcap", "fault_codes": ["HOT"],
+                     "sources": {"HOT": ["/powertrain/engine/temp_sensor"]}, "created_ns": 1_700_000_000_000_000_000,
+                     "started_ns": 1, "ended_ns": 2, "duration_sec": 1.5, "messages": 3, "path": bag, "size": 264,
+                     "topics": [{"topic": "/powertrain/engine/temperature", "type": "sensor_msgs/msg/Temperature"}]}
+        fw.replies = {**getattr(fw, "replies", {}), "bulk_rosbags": {"items": [recording]},
+                      "bulk_rosbag_get": lambda args: recording if args["id"] == "fault_HOT_1" else
+                      IpcError("no-such-recording", "Bulk-data not found", {"bulk_data_id": args["id"]}),
+                      "fault_list": {"items": []}}
+        client = make_app(fw, allow_bulk_data=True, api_token=TOKEN, bulk_data_categories="calibration",
+                          bulk_data_storage_dir=os.path.join(tmp, "files"), bulk_data_max_upload_size=1000,
+                          bulk_data_max_total_mb=1).test_client()
+        off = make_app(fw, bulk_data_categories="calibration", bulk_data_storage_dir=os.path.join(tmp, "files"),
+                       ).test_client()
+        upload = {"data": {"file": (io.BytesIO(b"calibrated"), "cal.bin")}, "content_type": "multipart/form-data"}
+        made = client.post("/api/v1/apps/temp_sensor/bulk-data/calibration", headers=auth,
+                           **{**upload, "data": {"file": (io.BytesIO(b"calibrated"), "cal.bin")}})
+        assert made.status_code == 201, made.data
+        for collection, eid in ENTITY.items():
+            base = f"/api/v1/{collection}/{eid or 'nope'}/bulk-data"
+            requests = [("GET", base, {}), ("GET", f"/api/v1/{collection}/bad.id/bulk-data", {}),
+                        ("GET", base + "/rosbags", {}), ("GET", base + "/nope", {}), ("GET", base + "/..%2Fx", {}),
+                        ("GET", base + "/rosbags/fault_HOT_1", {}),
+                        ("GET", base + "/rosbags/fault_HOT_1", {"headers": {"Range": "bytes=0-9"}}),
+                        ("GET", base + "/rosbags/fault_HOT_1", {"headers": {"Range": "bytes=999-"}}),
+                        ("GET", base + "/rosbags/fault_NONE_1", {}), ("GET", base + "/rosbags/..%2F..%2Fx", {}),
+                        ("GET", base + "/calibration", {}), ("GET", base + "/calibration/nope_1", {})]
+            if collection in ("areas", "components"):
+                sub = f"{base[:-len('/bulk-data')]}/{'subareas' if collection == 'areas' else 'subcomponents'}/s"
+                requests += [("GET", sub + "/bulk-data", {}), ("GET", sub + "/bulk-data/rosbags", {}),
+                             ("GET", sub + "/bulk-data/rosbags/fault_HOT_1", {})]
+            if collection in ("apps", "components"):
+                item = f"{base}/calibration/{made.get_json()['id']}" if collection == "apps" else base + "/calibration/x_1"
+                requests += [("GET", item, {}),
+                             ("POST", base + "/calibration", {**upload, "headers": auth}),
+                             ("POST", base + "/calibration", {**upload}),
+                             ("POST", base + "/calibration", {**upload, "headers": {"Authorization": "Bearer no"}}),
+                             ("POST", base + "/rosbags", {**upload, "headers": auth}),
+                             ("POST", base + "/nope", {**upload, "headers": auth}),
+                             ("POST", base + "/calibration", {"data": b"x", "content_type": "text/plain",
+                                                              "headers": auth}),
+                             ("POST", base + "/calibration", {"data": {"file": (io.BytesIO(b"x" * 2000), "big")},
+                                                              "content_type": "multipart/form-data", "headers": auth}),
+                             ("DELETE", item, {"headers": auth}), ("DELETE", item, {"headers": auth}),
+                             ("DELETE", item, {}), ("DELETE", base + "/rosbags/fault_HOT_1", {"headers": auth})]
+            for method, path, kw in requests:
+                if "data" in kw and isinstance(kw["data"], dict):  # a fresh file object per request
+                    kw = {**kw, "data": {k: (io.BytesIO(v[0].getvalue()), v[1]) for k, v in kw["data"].items()}}
+                r = client.open(path, method=method, **kw)
+                check(doc, method, path, r)
+                seen.setdefault(operation(doc, method, path)[0], set()).add(r.status_code)
+            r = off.post(base + "/calibration", **{**upload, "data": {"file": (io.BytesIO(b"x"), "x")}})
+            assert collection not in ("apps", "components") or r.status_code == 403, r.data
+        del fw.replies["bulk_rosbags"], fw.replies["bulk_rosbag_get"], fw.replies["fault_list"]
+    for statuses in (seen["GET /apps/{app_id}/bulk-data/{category_id}/{file_id}"],
+                     seen["POST /apps/{app_id}/bulk-data/{category_id}"]):
+        assert len(statuses) >= 3, statuses
 
 
 def test_schemas_are_valid_json_schema(doc):
@@ -149,7 +218,9 @@ def test_every_route_answers_per_the_document(doc):
             "/powertrain/engine/temperature", "sensor_msgs/msg/Temperature", {"temperature": 93.5})
         fw.type_infos["sensor_msgs/msg/Temperature"] = {"schema": {"type": "object"},
                                                         "default_value": {"temperature": 0.0}}
+        # (no failure limit: this test sends more bad tokens from one address than it lets through)
         client = make_app(fw, allow_publish=True, allow_configurations=True, allow_fault_clear=True, api_token=TOKEN,
+                          auth_failure_limit="",
                           max_body_bytes=1024).test_client()
         auth = {"Authorization": f"Bearer {TOKEN}"}
         requests: list[tuple[str, str, dict]] = [
@@ -327,10 +398,11 @@ def test_every_route_answers_per_the_document(doc):
             headers=auth)
         assert r.status_code == 503 and r.headers["Retry-After"] == "5"
         check(doc, "POST", "/api/v1/apps/temp_sensor/triggers", r)
-        # medkit's routes not served here: 501 whatever the ids (app/core/unimplemented.py).
+        # medkit's routes not served here: 501 whatever the ids (app/core/unimplemented.py); a write
+        # is asked for its token first, as every write (app/auth/).
         for route, path, _ in unimplemented.paths():
             concrete = "/api/v1" + re.sub(r"\{[^}]+\}", "x1", path)
-            r = client.open(concrete, method=route.method)
+            r = client.open(concrete, method=route.method, headers=auth if route.method != "GET" else {})
             assert r.status_code == 501, (route.method, concrete, r.data)
             seen.setdefault(check(doc, route.method, concrete, r), set()).add(r.status_code)
         fw.errors["sub_create"] = IpcError("subscriptions-full", "full", {"max_subscriptions": 1000})
@@ -388,10 +460,54 @@ def test_every_route_answers_per_the_document(doc):
             check(doc, "GET", path, r)
             seen.setdefault(operation(doc, "GET", path)[0], set()).add(r.status_code)
         del fw.replies["lifecycle_state"]
+
+        def answer(method: str, path: str, **kw) -> int:
+            r = client.open(path, method=method, **kw)
+            seen.setdefault(check(doc, method, path, r), set()).add(r.status_code)
+            return r
+
+        # who is acting (issue 31): the locks (the fake worker holds rosworker/locks/' table), the auth
+        # routes (off on this gateway: 404; on in the app below), the audit trail
+        for base in ("/api/v1/apps/temp_sensor/locks", "/api/v1/components/test-robot/locks"):
+            me = {**auth, "X-Client-Id": "tester"}
+            lock = answer("POST", base, json={"lock_expiration": 60, "scopes": ["data"]}, headers=me).get_json()
+            answer("POST", base, json={"lock_expiration": 60}, headers={**auth, "X-Client-Id": "other"})  # 409
+            answer("POST", base, json={"lock_expiration": 0}, headers=me)  # 400
+            answer("GET", base, headers={"X-Client-Id": "tester"})
+            answer("GET", f"{base}/{lock['id']}")
+            answer("GET", f"{base}/lock_999")  # 404
+            answer("PUT", f"{base}/{lock['id']}", json={"lock_expiration": 30}, headers=me)
+            answer("PUT", f"{base}/{lock['id']}", json={"lock_expiration": 30}, headers={**auth, "X-Client-Id": "x"})
+            answer("DELETE", f"{base}/{lock['id']}", headers={**auth, "X-Client-Id": "x"})  # 403
+            answer("DELETE", f"{base}/{lock['id']}", headers=me)
+        for path in ("/api/v1/auth/authorize", "/api/v1/auth/token", "/api/v1/auth/revoke"):
+            answer("POST", path, json={})
+        answer("GET", "/api/v1/auth/x-medkit-whoami", headers=auth)
+        answer("GET", "/api/v1/auth/x-medkit-whoami")
+        answer("GET", "/api/v1/x-medkit-audit?limit=2", headers=auth)
+        answer("GET", "/api/v1/x-medkit-audit?status=9xx", headers=auth)
+        answer("GET", "/api/v1/x-medkit-audit")  # 401
+        secured = make_app(fw, auth_enabled=True, jwt_secret="s" * 32, auth_clients="op:op-secret:operator",
+                           auth_failure_limit="")
+        client, plain = secured.test_client(), client
+        granted = answer("POST", "/api/v1/auth/authorize", json={
+            "grant_type": "client_credentials", "client_id": "op", "client_secret": "op-secret"}).get_json()
+        answer("POST", "/api/v1/auth/authorize", data="grant_type=client_credentials&client_id=op&client_secret=no",
+               content_type="application/x-www-form-urlencoded")
+        answer("POST", "/api/v1/auth/authorize", json={"grant_type": "password"})
+        answer("POST", "/api/v1/auth/token", json={"grant_type": "refresh_token",
+                                                   "refresh_token": granted["refresh_token"]})
+        answer("POST", "/api/v1/auth/token", json={"grant_type": "refresh_token", "refresh_token": "no"})
+        answer("GET", "/api/v1/auth/x-medkit-whoami", headers={"Authorization": f"Bearer {granted['access_token']}"})
+        answer("POST", "/api/v1/auth/revoke", json={"token": granted["refresh_token"]})
+        answer("POST", "/api/v1/auth/revoke", data=b"{", content_type="application/json")
+        answer("GET", "/api/v1/x-medkit-audit", headers={"Authorization": f"Bearer {granted['access_token']}"})
+        client = plain
         fw.errors["param_get"] = IpcError("node-unavailable", "did not respond", {"retry_after_s": 3})
         r = client.get("/api/v1/apps/temp_sensor/configurations/rate")
         assert r.status_code == 503 and r.headers["Retry-After"] == "3"
         check(doc, "GET", "/api/v1/apps/temp_sensor/configurations/rate", r)
+        _exercise_bulk_data(doc, fw, seen, auth)
         fw.stop()
         for path in ("/api/v1/health", "/api/v1/apps", "/api/v1/apps/temp_sensor",
                      "/api/v1/components/test-robot/hosts", "/api/v1/apps/temp_sensor/docs"):
@@ -404,7 +520,7 @@ def test_every_route_answers_per_the_document(doc):
     # Successes of entity routes were seen for every collection that has entities.
     assert 200 in seen["GET /apps/{app_id}/data/{data_id}"]
     assert 200 in seen["PUT /functions/{function_id}/data/{data_id}"]
-    assert {400, 401, 403, 413, 415} <= seen["PUT /components/{component_id}/data/{data_id}"]
+    assert {400, 401, 413, 415} <= seen["PUT /components/{component_id}/data/{data_id}"]  # a wrong token: 401
     for op in ("POST /apps/{app_id}/cyclic-subscriptions", "PUT /apps/{app_id}/cyclic-subscriptions/{subscription_id}"):
         assert 415 in seen[op], op
     for collection, relation in RELATIONS:  # each relation answered, and refused both ways
@@ -413,18 +529,18 @@ def test_every_route_answers_per_the_document(doc):
         assert seen[f"GET /{collection}/{param}/{relation}"] == expected
     assert seen["GET /apps/{app_id}/data/docs"] == {200}
     assert seen["GET /areas/{area_id}/docs"] == {404}
-    assert {200, 400, 401, 403, 413, 415} <= seen["PUT /components/{component_id}/configurations/{config_id}"]
+    assert {200, 400, 401, 413, 415} <= seen["PUT /components/{component_id}/configurations/{config_id}"]
     assert {204, 401} <= seen["DELETE /apps/{app_id}/configurations/{config_id}"]
     assert {207, 401} <= seen["DELETE /functions/{function_id}/configurations"]
     # faults (issue 22): every fault route answered, and refused as documented
-    assert seen["GET /faults"] == {200, 400} and seen["DELETE /faults"] == {204, 400, 401, 403}
+    assert seen["GET /faults"] == {200, 400} and seen["DELETE /faults"] == {204, 400, 401}
     assert seen["GET /faults/stream"] == {200, 503}
     for collection in ("apps", "components", "functions"):
         param = "{" + collection[:-1] + "_id}"
         assert seen[f"GET /{collection}/{param}/faults"] == {200, 400, 404}
-        assert seen[f"DELETE /{collection}/{param}/faults"] == {204, 400, 401, 403, 404}
+        assert seen[f"DELETE /{collection}/{param}/faults"] == {204, 400, 401, 404}
         assert seen[f"GET /{collection}/{param}/faults/{{fault_code}}"] == {200, 400, 404}
-        assert seen[f"DELETE /{collection}/{param}/faults/{{fault_code}}"] == {204, 400, 401, 403, 404}
+        assert seen[f"DELETE /{collection}/{param}/faults/{{fault_code}}"] == {204, 400, 401, 404}
 
 
 def test_every_operation_with_a_json_body_documents_the_body_errors(doc):
@@ -432,10 +548,17 @@ def test_every_operation_with_a_json_body_documents_the_body_errors(doc):
     with_body = [(method, path, op) for path, ops in doc["paths"].items() for method, op in ops.items()
                  if "requestBody" in op]
     # PUT data of 4 collections; POST and PUT cyclic-subscriptions of 3; POST and PUT executions of 3;
-    # PUT configurations of 3; PUT logs/configuration of 3; POST and PUT triggers of 3
-    assert len(with_body) == 28
+    # PUT configurations of 3; PUT logs/configuration of 3; POST and PUT triggers of 3; POST and PUT
+    # locks of 2; the three POST /auth routes; POST bulk-data of 2
+    assert len(with_body) == 37
     for method, path, op in with_body:
-        assert list(op["requestBody"]["content"]) == ["application/json"], (method, path)
+        if path.startswith("/auth/"):  # medkit's OAuth2 routes: a form too, and 400 for another type
+            assert {"408", "413", "400"} <= set(op["responses"]), (method, path)
+            assert "application/json" in op["requestBody"]["content"]
+            continue
+        multipart = "/bulk-data/" in path  # an upload (app/bulk_data/files.py)
+        assert list(op["requestBody"]["content"]) == ["multipart/form-data" if multipart else "application/json"], \
+            (method, path)
         assert {"408", "413", "415"} <= set(op["responses"]), (method, path)
 
 

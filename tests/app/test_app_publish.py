@@ -64,12 +64,14 @@ def test_token_missing_is_401_with_www_authenticate(fw):
     assert no_ros_traffic(fw)
 
 
-def test_wrong_token_is_403(fw):
+def test_wrong_token_is_401(fw):
+    """A bad token is medkit's 401 invalid_token (it was 403 before identities: issue 31)."""
     client = make_app(fw, allow_publish=True, api_token=TOKEN).test_client()
     for wrong in ("nope", TOKEN + "x", TOKEN[:-1], "ünïcode"):
         r = client.put(URL, json=BODY, headers={"Authorization": f"Bearer {wrong}"})
-        assert r.status_code == 403
-        assert r.get_json()["error_code"] == "forbidden"
+        assert r.status_code == 401
+        assert r.headers["WWW-Authenticate"].startswith("Bearer")
+        assert (r.get_json()["error_code"], r.get_json()["error"]) == ("unauthorized", "invalid_token")
     assert no_ros_traffic(fw)
 
 

@@ -42,10 +42,10 @@ def test_root_says_what_is_not_served(client):
     """The capabilities say what answers 501 (app/core/unimplemented.py) and what is not there yet."""
     body = client.get("/api/v1/").get_json()
     caps = body["capabilities"]
-    for name in ("bulk_data", "locking", "scripts", "lifecycle", "updates"):
+    for name in ("scripts", "lifecycle", "updates", "authentication", "tls", "bulk_data_writes"):
         assert caps[name] is False, name
     for name in ("cyclic_subscriptions", "docs", "operations", "async_actions", "configurations", "faults",
-                 "logs", "triggers"):
+                 "logs", "triggers", "locking", "bulk_data"):  # locks: issue 31; bulk data: issue 32
         assert caps[name] is True, name
     assert "GET /api/v1/updates" in body["endpoints"]
     assert "POST /api/v1/apps/{app_id}/locks" in body["endpoints"]
@@ -167,10 +167,16 @@ def test_entity_docs_fill_in_the_entity(client):
     assert list(doc["paths"]) == [
         "/components/test-robot", "/components/test-robot/subcomponents", "/components/test-robot/hosts",
         "/components/test-robot/depends-on",
+        "/components/test-robot/bulk-data", "/components/test-robot/bulk-data/{category_id}",  # issue 32
+        "/components/test-robot/bulk-data/{category_id}/{file_id}",
+        "/components/test-robot/subcomponents/{subcomponent_id}/bulk-data",
+        "/components/test-robot/subcomponents/{subcomponent_id}/bulk-data/{category_id}",
+        "/components/test-robot/subcomponents/{subcomponent_id}/bulk-data/{category_id}/{file_id}",
         "/components/test-robot/configurations", "/components/test-robot/configurations/{config_id}",
         "/components/test-robot/data", "/components/test-robot/data/{data_id}",
         "/components/test-robot/data-categories", "/components/test-robot/data-groups",
         "/components/test-robot/faults", "/components/test-robot/faults/{fault_code}",
+        "/components/test-robot/locks", "/components/test-robot/locks/{lock_id}",  # locks (issue 31)
         "/components/test-robot/logs", "/components/test-robot/logs/configuration",
         "/components/test-robot/operations", "/components/test-robot/operations/{operation_id}",
         "/components/test-robot/operations/{operation_id}/executions",
@@ -185,7 +191,6 @@ def test_entity_docs_fill_in_the_entity(client):
         # medkit's routes not served here (501), in the order of unimplemented.ROUTES
         *dict.fromkeys(path.replace("{component_id}", "test-robot")
                        for _, path, collection in unimplemented.paths() if collection == "components")]
-    assert "/components/test-robot/locks/{lock_id}" in doc["paths"]
     get = doc["paths"]["/components/test-robot/hosts"]["get"]
     assert get["operationId"] == "listComponentHosts" and "parameters" not in get
     read = doc["paths"]["/components/test-robot/data/{data_id}"]["get"]

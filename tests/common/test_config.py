@@ -55,7 +55,23 @@ def test_to_env_round_trips():
     (["--bind", "127.0.0.1:70000"], {}, "port of 1–65535"),
     (["--gateway-name", "9bad"], {}, "not a valid ROS node name"),
     (["--log-level", "loud"], {}, "one of debug, info, warning, error"),
-    (["--api-token", "short"], {}, "at least 16 characters"),
+    ([], {"SOVD_API_TOKEN": "short"}, "at least 16 characters"),
+    (["--api-token", "a-long-enough-secret"], {}, "never given as a flag"),
+    (["--jwt-secret", "x" * 40], {}, "SOVD_JWT_SECRET"),
+    (["--auth-clients", "a:b:admin"], {}, "never given as a flag"),
+    ([], {"SOVD_AUTH_ENABLED": "1", "SOVD_AUTH_CLIENTS": "a:b:admin", "SOVD_JWT_SECRET": "short"}, "32 characters"),
+    ([], {"SOVD_AUTH_ENABLED": "1", "SOVD_JWT_SECRET": "x" * 32}, "auth_clients"),
+    ([], {"SOVD_AUTH_CLIENTS": "a:b:superuser"}, "viewer, operator, configurator, admin"),
+    ([], {"SOVD_AUTH_CLIENTS": "a:b:admin,a:c:viewer"}, "given twice"),
+    ([], {"SOVD_AUTH_CLIENTS": "a::admin"}, "empty secret"),
+    ([], {"SOVD_AUTH_CLIENTS": "just-a-name"}, "id:secret:role"),
+    (["--require-auth-for", "some"], {}, "none, write, all"),
+    (["--tls-cert", "/etc/hostname"], {}, "give both"),
+    (["--tls-cert", "/nope.pem", "--tls-key", "/nope.key"], {}, "not a readable file"),
+    ([], {"SOVD_AUTH_ENABLED": "1", "SOVD_AUTH_CLIENTS": "a:b:admin", "SOVD_JWT_ALGORITHM": "RS256",
+          "SOVD_JWT_SECRET": "/nope.pem"}, "RS256 needs a readable PEM file"),
+    (["--token-expiry-seconds", "100", "--refresh-token-expiry-seconds", "50"], {"SOVD_AUTH_ENABLED": "1",
+     "SOVD_AUTH_CLIENTS": "a:b:admin", "SOVD_JWT_SECRET": "x" * 32}, "at least token_expiry_seconds"),
 ])
 def test_out_of_range_values_are_refused_with_a_clear_message(argv, env, needle):
     with pytest.raises(config.ConfigError) as info:
@@ -138,10 +154,57 @@ def test_every_setting_is_in_the_settings_reference():
     """docs/settings.md has one row per setting: its flag, its variable, its default."""
     from tests.support.procs import REPO
 
-    rows = {line.split("|")[1].strip(" `"): line for line in (REPO / "docs" / "settings.md").read_text().splitlines()
-            if line.startswith("| `--")}
+    rows = {line.split("|")[2].strip(" `"): [c.strip() for c in line.split("|")]
+            for line in (REPO / "docs" / "settings.md").read_text().splitlines() if line.startswith("| `--")
+            or line.startswith("| — (a secret)")}
     for s in config.SETTINGS:
-        assert s.flag in rows, f"{s.flag} is not in docs/settings.md"
-        cells = [c.strip() for c in rows[s.flag].split("|")]
-        assert cells[2] == f"`{s.env}`", (s.flag, cells)
-    assert len(rows) == len(config.SETTINGS), set(rows) - {s.flag for s in config.SETTINGS}
+        assert s.env in rows, f"{s.env} is not in docs/settings.md"
+        # a secret has no flag (ps shows a command line); every other setting its own
+        expected = "— (a secret)" if s.secret else f"`{s.flag}`"
+        assert rows[s.env][1].startswith(expected), (s.flag, rows[s.env])
+    assert len(rows) == len(config.SETTINGS), set(rows) - {s.env for s in config.SETTINGS}
+
+
+# ---- the fleet over Zenoh (issue 34) -------------------------------------------------------------------
+TOKEN = ["--api-token", "t" * 16]  # a secret: fleet_load puts it in the environment, where secrets go
+
+
+def fleet_load(argv=(), env=None):
+    argv = list(argv)
+    env = dict(env or {})
+    if "--api-token" in argv:
+        at = argv.index("--api-token")
+        env["SOVD_API_TOKEN"] = argv[at + 1]
+        del argv[at:at + 2]
+    return load(argv, env)
+
+
+def test_the_zenoh_fleet_is_off_by_default_and_its_id_defaults_to_the_host_name(monkeypatch):
+    cfg = fleet_load()
+    assert (cfg.fleet_link, cfg.fleet_aggregate, cfg.fleet_allow_writes, cfg.fleet_id) == (False, False, False, "")
+    assert (cfg.fleet_timeout, cfg.fleet_max_robots) == (2.0, 1000)
+    import socket
+
+    monkeypatch.setattr(socket, "gethostname", lambda: "Robot-7.Lab.example.com")
+    cfg = fleet_load(["--fleet-link", "--fleet-connect", "tcp/10.0.0.1:7447", *TOKEN])
+    assert cfg.fleet_id == "robot-7_lab_example_com"
+    assert config.load(None, cfg.to_env()) == cfg          # the children see the same id
+    assert config.default_fleet_id("__") == "robot" and config.default_fleet_id("a..b") == "a_b"
+    cfg = fleet_load(["--fleet-aggregate", *TOKEN], {"SOVD_FLEET_CONNECT": "tls/fleet.example.com:7447"})
+    assert cfg.fleet_aggregate and cfg.fleet_connect == "tls/fleet.example.com:7447"
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--fleet-link", "--fleet-aggregate", "--fleet-connect", "tcp/h:1", *TOKEN], "turn one of them off"),
+    (["--fleet-link", *TOKEN], "give fleet_connect"),
+    (["--fleet-aggregate", "--fleet-connect", "tcp/h:1"], "set api_token"),
+    (["--fleet-link", "--fleet-connect", "tcp/h:1", "--fleet-id", "a__b", *TOKEN], "'a__b' is not a fleet id"),
+    (["--fleet-link", "--fleet-connect", "tcp/h:1", "--fleet-id", "a/b", *TOKEN], "is not a fleet id"),
+    (["--fleet-link", "--fleet-zenoh-config", "/nonexistent.json5", *TOKEN], "is not a file"),
+    (["--fleet-timeout", "0"], "fleet_timeout (from flag --fleet-timeout): 0.0 is out of range"),
+    (["--fleet-max-robots", "0"], "out of range"),
+])
+def test_the_zenoh_fleet_refuses_settings_it_cannot_work_with(argv, needle):
+    with pytest.raises(config.ConfigError) as info:
+        fleet_load(argv)
+    assert needle in str(info.value)

@@ -46,13 +46,15 @@ def fw():
 def test_the_declaration_is_well_formed():
     keys = Tally((c.section, c.name) for c in counters.COUNTERS)
     assert [k for k, n in keys.items() if n > 1] == []
-    kinds = {counters.COUNTER, counters.GAUGE, counters.FLAG, counters.BY, counters.TIMINGS}
+    kinds = {counters.COUNTER, counters.GAUGE, counters.FLAG, counters.BY, counters.TIMINGS, counters.GAUGES_BY}
+    origins = (counters.ROS, counters.HTTP, counters.FLEET)
     setting_names = {s.name for s in SETTINGS}
     for c in counters.COUNTERS:
-        assert c.section in counters.SECTIONS and c.kind in kinds and c.origin in (counters.ROS, counters.HTTP), c
+        assert c.section in counters.ALL_SECTIONS and c.kind in kinds and c.origin in origins, c
+        assert (c.origin == counters.FLEET) == (c.section in counters.FLEET_SECTIONS), c
         assert c.help and (c.metric is None or c.metric.startswith("sovd_")), c
         assert c.setting is None or c.setting in setting_names, c
-        assert (c.kind in (counters.BY, counters.TIMINGS)) <= bool(c.label and c.metric), c
+        assert (c.kind in (counters.BY, counters.TIMINGS, counters.GAUGES_BY)) <= bool(c.label and c.metric), c
         assert c.label is None or c.kind != counters.COUNTER or c.metric in counters.FAMILY_HELP, c
     # A metric belongs to one counter, unless it is a labelled family of several.
     metrics = Tally(c.metric for c in counters.COUNTERS if c.metric)

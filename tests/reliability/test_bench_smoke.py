@@ -20,7 +20,8 @@ CASES = {"floor8", "floor1", "warm8", "warm1", "echo8", "echo1", "hop1", "inside
          "image_b64", "idle", "memory", "streams", "fanout", "stream_image", "made_up", "sub_changes",
          "trigger",  # operations: a Trigger call against a bare rclpy client
          "param_get", "param_put", "rosout",  # configurations (bench/params.py); logs (bench/logs.py)
-         "faults_cpu", "faults_confirm"}  # faults (issue 22): bench/faults.py
+         "faults_cpu", "faults_confirm",  # faults (issue 22): bench/faults.py
+         "fleet_faults", "fleet_hung", "fleet_fault_stream", "fleet_memory", "fleet_idle"}  # bench/fleet.py
 
 
 @pytest.mark.timeout(420)

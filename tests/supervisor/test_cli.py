@@ -44,7 +44,7 @@ def test_version():
     (["--bind", "127.0.0.1:70000"], {}, ["bind"]),
     (["--log-level", "loud"], {}, ["log_level", "debug, info, warning, error"]),
     ([], {"SOVD_RESTART_LIMIT": "0"}, ["restart_limit", "environment SOVD_RESTART_LIMIT"]),
-    (["--api-token", "short"], {}, ["api_token", "16"]),
+    (["--api-token", "a-long-enough-secret"], {}, ["api_token", "never given as a flag", "SOVD_API_TOKEN"]),
 ])
 def test_bad_settings_exit_2_with_a_clear_message(tmp_path, args, env, words):
     r = run_cli("--runtime-dir", str(tmp_path / "rt"), *args, env=env)

@@ -99,6 +99,8 @@ class FakeWorker:
         self.envelopes: list[dict[str, Any]] = []
         self.subscriptions: dict[str, dict[str, Any]] = {}
         self.apps: list[Any] = []  # Flask apps made by make_app(self): closed with the worker
+        self.locks: Any = None        # locks: rosworker/locks/'s LockTable, made on the first lock_* command
+        self.lock_stats: Any = None
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._bound = threading.Event()
@@ -139,6 +141,8 @@ class FakeWorker:
 
         for app in self.apps:
             app.extensions[rosclient.EXTENSION].close()
+            if "sovd_audit" in app.extensions:   # the audit trail's writer (app/audit/)
+                app.extensions["sovd_audit"].close()
         self.stop()
         if self._own_dir:
             shutil.rmtree(self.runtime_dir, ignore_errors=True)
@@ -245,7 +249,28 @@ class FakeWorker:
             return self._trigger(cmd, args)
         if cmd == "lifecycle_state":  # GET .../status: a plain node (a test may put another answer in replies)
             return {"managed": False, "state": None}
+        if cmd.startswith("lock_"):  # locks: the ROS worker's own table (rosworker/locks/: no rclpy in it)
+            return self._lock_command(cmd, args)
         return IpcError("unknown-command", f"unknown command {cmd!r}")
+
+    def _lock_command(self, cmd: str, args: dict[str, Any]) -> Any:
+        if self.locks is None:
+            from types import SimpleNamespace
+
+            from ipc import counters
+            from rosworker.locks import LockTable
+
+            stats = SimpleNamespace(**{c.name: 0 for c in counters.section("locks", counters.ROS)})
+            self.locks = LockTable(self.runtime_dir, stats, max_locks=100, max_expiration=3600,
+                                   cleanup_interval=3600, call_later=lambda *_: None, restore=False)
+            self.lock_stats = stats
+        answer: list[Any] = []
+        task = SimpleTask(args, answer.append)
+        try:
+            self.locks.commands[cmd](task)
+        except IpcError as exc:
+            return exc
+        return answer[0]
 
 
     def _subscription(self, cmd: str, args: dict[str, Any]) -> Any:
@@ -305,6 +330,14 @@ class FakeWorker:
         return IpcError("unknown-command", f"unknown command {cmd!r}")
 
 
+class SimpleTask:
+    """What a ROS-worker command handler gets: its ``args`` and ``reply``."""
+
+    def __init__(self, args: dict[str, Any], reply: Any):
+        self.args = args
+        self.reply = reply
+
+
 def make_app(worker: FakeWorker | None = None, runtime_dir: str | None = None, **overrides: Any):
     """The Flask app (``app.wsgi.create_app``) wired to ``worker``'s socket.
 
@@ -312,7 +345,9 @@ def make_app(worker: FakeWorker | None = None, runtime_dir: str | None = None, *
     """
     from app.wsgi import create_app
 
-    config = {"runtime_dir": runtime_dir or worker.runtime_dir, "SOVD_HOSTNAME": "test-robot",
+    directory = runtime_dir or worker.runtime_dir
+    # The audit trail and the revoked tokens (access.db) go to the test's own directory, not the user's.
+    config = {"runtime_dir": directory, "state_dir": directory, "SOVD_HOSTNAME": "test-robot",
               "SOVD_GRAPH_REFRESH_S": 0.0, **overrides}
     app = create_app(config)
     if worker is not None:

@@ -14,6 +14,7 @@ import requests
 from .procs import Proc, free_port, poll_until
 
 BIN = Path(sys.executable).parent
+SECRET_FLAGS = {"--api-token": "SOVD_API_TOKEN"}
 
 
 class Gateway(Proc):
@@ -25,9 +26,22 @@ class Gateway(Proc):
 
     def __init__(self, *args: str, env: dict | None = None, timeout: float = 60.0,
                  runtime_dir: str | None = None, log_path: str | None = None):
+        # A secret is never a flag (ps shows it): "--api-token X" goes in the environment, as an
+        # operator puts it there.
+        args, env = list(args), dict(env or {})
+        for flag, variable in SECRET_FLAGS.items():
+            while flag in args:
+                at = args.index(flag)
+                env[variable] = args[at + 1]
+                del args[at:at + 2]
         self.port = free_port()
-        self.url = f"http://127.0.0.1:{self.port}"
+        # TLS (--tls-cert): requests check the server's certificate against that file.
+        self.verify = args[args.index("--tls-cert") + 1] if "--tls-cert" in args else True
+        self.url = f"{'https' if '--tls-cert' in args else 'http'}://127.0.0.1:{self.port}"
         self.api = self.url + "/api/v1"
+        # Under require_auth_for=all, /health wants a token: the legacy api_token is an admin's.
+        token = env.get("SOVD_API_TOKEN")
+        self.health_headers = {"Authorization": f"Bearer {token}"} if token else {}
         self._own_dir = runtime_dir is None
         self.runtime_dir = runtime_dir or tempfile.mkdtemp(prefix="sovd-gw-")
         os.chmod(self.runtime_dir, 0o700)
@@ -50,7 +64,7 @@ class Gateway(Proc):
     def _healthy(self) -> bool:
         if self.proc.poll() is not None:
             raise AssertionError(f"sovd-gateway exited with {self.proc.returncode}:\n" + self.tail(60))
-        r = requests.get(self.api + "/health", timeout=2)
+        r = requests.get(self.api + "/health", timeout=2, headers=self.health_headers, verify=self.verify)
         return r.status_code == 200 and r.json()["x-medkit-subscription-executor"]["worker_alive"]
 
     def host(self) -> str:
@@ -68,11 +82,35 @@ class Gateway(Proc):
 
     def get(self, path: str, **kw) -> requests.Response:
         kw.setdefault("timeout", 15)
+        kw.setdefault("verify", self.verify)
         return requests.get(self.api + path, **kw)
 
     def put(self, path: str, **kw) -> requests.Response:
         kw.setdefault("timeout", 15)
+        kw.setdefault("verify", self.verify)
         return requests.put(self.api + path, **kw)
+
+    def request(self, method: str, path: str, **kw) -> requests.Response:
+        kw.setdefault("timeout", 15)
+        kw.setdefault("verify", self.verify)
+        return requests.request(method, self.api + path, **kw)
+
+    def worker_sessions(self) -> dict[int, requests.Session]:
+        """One keep-alive session per HTTP worker (each stays on the worker that took its connection),
+        by the pid the debug route tells (start the gateway with ``--debug-commands``)."""
+        sessions: dict[int, requests.Session] = {}
+
+        def both() -> bool:
+            s = requests.Session()
+            pid = s.get(self.api + "/x-sovd-debug/worker", timeout=15, verify=self.verify).json()["pid"]
+            if pid in sessions:
+                s.close()
+            else:
+                sessions[pid] = s
+            return len(sessions) == 2
+
+        poll_until(both, 30, interval=0.01, message="a connection to each HTTP worker")
+        return sessions
 
     def _children(self) -> list[psutil.Process]:
         try:
@@ -107,3 +145,21 @@ class Gateway(Proc):
         if self._own_state:  # faults
             shutil.rmtree(self.state_dir, ignore_errors=True)
         return code
+
+
+class FleetGateway(Gateway):
+    """``sovd-gateway --fleet-aggregate`` (issue 34): healthy once ``/health`` says its fleet link answers
+    (it has no ROS worker to wait for)."""
+
+    def _healthy(self) -> bool:
+        if self.proc.poll() is not None:
+            raise AssertionError(f"sovd-gateway exited with {self.proc.returncode}:\n" + self.tail(60))
+        r = requests.get(self.api + "/health", timeout=2)
+        return r.status_code == 200 and r.json()["x-medkit-fleet"]["link_alive"]
+
+    def fleet_link(self):
+        """The fleet-link process (the child that stands where a ROS worker would)."""
+        for p in self._children():
+            if any("fleetlink" in part for part in p.cmdline()):
+                return p
+        raise RuntimeError("no fleet link under the gateway")

@@ -105,7 +105,7 @@ class Proc:
     """
 
     def __init__(self, argv: list[str], env: dict | None = None, name: str = "proc",
-                 log_path: str | None = None, stdin: bool = False):
+                 log_path: str | None = None, stdin: bool | int | None = None):
         self.name = name
         self.lines: queue.Queue[str] = queue.Queue()
         self.output: list[str] = []
@@ -114,7 +114,8 @@ class Proc:
         self.proc = subprocess.Popen(
             argv, stdout=self._log or subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
             env={**os.environ, **(env or {})}, cwd=REPO, start_new_session=True,
-            stdin=subprocess.PIPE if stdin else subprocess.DEVNULL if log_path else None,
+            stdin=(subprocess.PIPE if stdin is True else stdin if stdin not in (None, False)
+                   else subprocess.DEVNULL if log_path else None),
         )
         self._reader = None
         if self._log is None:
@@ -184,8 +185,8 @@ class Proc:
 class RosNode(Proc):
     """A real rclpy node in another process (``tests/support/rospub.py``)."""
 
-    def __init__(self, spec: dict, timeout: float = 20.0):
-        super().__init__([sys.executable, "-m", "tests.support.rospub", json.dumps(spec)],
+    def __init__(self, spec: dict, timeout: float = 20.0, env: dict | None = None):
+        super().__init__([sys.executable, "-m", "tests.support.rospub", json.dumps(spec)], env=env,
                          name=f"rosnode {spec.get('node')}")
         self.wait_line(lambda line: line == "READY", timeout)
 

@@ -4,6 +4,7 @@
         assert s.status == 200
         event = s.next(timeout=2)      # {"timestamp", "payload"} or {"timestamp", "error"}; None at the end
         s.comments                     # ":" lines seen (keep-alives)
+        s.fields[i]                    # the other lines of event i: {"id": ..., "event": ...}
 
 Frames are parsed as they arrive, so a test can tell a stream that is sent
 event by event from one buffered until it ends.  ``recv_buffer`` shrinks the
@@ -41,6 +42,7 @@ class EventStream:
         self._done = False     # the body ended (last chunk, or the connection closed)
         self.comments: list[bytes] = []
         self.events: list[dict[str, Any]] = []   # every event parsed so far, in order
+        self.fields: list[dict[str, str]] = []   # each event's "id:" and "event:" lines
         self.arrivals: list[float] = []          # monotonic time each event was parsed
         self.status, self.headers, self.body = self._head(timeout)
 
@@ -111,13 +113,18 @@ class EventStream:
         while b"\n\n" in self._text:
             block, _, self._text = self._text.partition(b"\n\n")
             data = []
+            fields = {}
             for line in block.split(b"\n"):
                 if line.startswith(b":"):
                     self.comments.append(line)
                 elif line.startswith(b"data:"):
                     data.append(line[5:].lstrip(b" "))
+                elif line.startswith((b"id:", b"event:")):
+                    key, _, value = line.decode().partition(":")
+                    fields[key] = value.strip()
             if data:
                 self.events.append(json.loads(b"\n".join(data)))
+                self.fields.append(fields)
                 self.arrivals.append(time.monotonic())
 
     def next(self, timeout: float = 5.0, start: int | None = None) -> dict[str, Any] | None:

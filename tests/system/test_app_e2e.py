@@ -290,10 +290,12 @@ def test_routes_not_served_here_are_501_not_404(gw):
                                 "message": unimplemented.FEATURES[route.feature].message,
                                 "parameters": {"feature": route.feature}}, concrete
     caps = gw.get("/").json()["capabilities"]
-    assert [name for name in ("bulk_data", "locking", "scripts", "lifecycle", "updates") if caps[name]] == []
+    assert [name for name in ("scripts", "lifecycle", "updates") if caps[name]] == []
+    assert caps["locking"] is True   # locks are served (issue 31), on by default as in medkit
+    assert caps["bulk_data"] is True  # served (issue 32, app/bulk_data/)
     r = gw.get("/apps/temp_sensor/no-such-collection")
     assert r.status_code == 404 and r.json()["error_code"] == "resource-not-found"
-    r = requests.post(gw.api + "/areas/nope/bulk-data/x1", timeout=15)
+    r = requests.post(gw.api + "/areas/nope/bulk-data/x1", headers=auth, timeout=15)   # (a write: the token first)
     assert r.status_code == 405, r.text   # as medkit: bulk data is uploaded to components and apps only
 
 
@@ -400,7 +402,7 @@ def test_publish_reaches_a_subscriber(gw, robot):
     url = "/apps/controller/data/body/lights/cmd"
     body = {"type": "std_msgs/msg/Bool", "data": {"data": True}}
     assert gw.put(url, json=body).status_code == 401
-    assert gw.put(url, json=body, headers={"Authorization": "Bearer wrong"}).status_code == 403
+    assert gw.put(url, json=body, headers={"Authorization": "Bearer wrong"}).status_code == 401  # medkit: invalid_token
     auth = {"Authorization": f"Bearer {TOKEN}"}
 
     def delivered():

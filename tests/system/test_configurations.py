@@ -199,7 +199,7 @@ def test_body_without_data_is_400(gw):
 def test_writes_need_the_token(gw):
     r = put(gw, f"{T}/count", {"data": 1}, headers={})
     assert r.status_code == 401 and r.json()["error_code"] == "unauthorized"
-    assert delete(gw, T, headers={"Authorization": "Bearer wrong-token-000000000"}).status_code == 403
+    assert delete(gw, T, headers={"Authorization": "Bearer wrong-token-000000000"}).status_code == 401
     assert gw.get(f"{T}/count").json()["data"] == 7
 
 

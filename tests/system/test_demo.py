@@ -7,6 +7,7 @@ import os
 import signal
 import subprocess
 import tempfile
+import threading
 from pathlib import Path
 
 import psutil
@@ -25,6 +26,9 @@ def test_demo_serves_live_data_and_ctrl_c_stops_everything_in_order():
                              f"ARGS=--var {var} --allow-fault-clear"],
                             cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             start_new_session=True)
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)  # the terminal's view
+    reader.start()
     descendants: list[psutil.Process] = []
     try:
         def live():
@@ -42,12 +46,17 @@ def test_demo_serves_live_data_and_ctrl_c_stops_everything_in_order():
         descendants = psutil.Process(proc.pid).children(recursive=True)
         names = " ".join(" ".join(p.cmdline()) for p in descendants)
         assert "demo.robot" in names and "sovd-rosworker" in names and "gunicorn" in names
+        # the banner comes once the launcher's own look at /health answered (a loaded machine: later)
+        poll_until(lambda: any("sovd-gateway demo is running" in line for line in lines), 30, interval=0.1,
+                   message="the banner")
         os.killpg(proc.pid, signal.SIGINT)
-        out, _ = proc.communicate(timeout=30)
+        proc.wait(timeout=30)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
-            proc.communicate(timeout=10)
+            proc.wait(timeout=10)
+        reader.join(timeout=10)
+    out = "".join(lines)
     # make passes the SIGINT on after its recipe ended (as in a terminal: "make: *** [run] Interrupt");
     # the launcher's own exit code is checked in test_demo_logs.py, which starts it without make.
     assert proc.returncode == -signal.SIGINT, out[-3000:]

@@ -272,7 +272,7 @@ def test_publish_through_the_form_and_read_it_back(gw, page):
     watch.allow("PUT", 401)
     form.locator("button[type=submit]").click()
     token_error = form.locator(".field[data-field='token'] .field-error")
-    expect(token_error).to_contain_text("Authentication required")
+    expect(token_error).to_contain_text("Missing Authorization header")   # medkit's 401 text
     form.locator(".field[data-field='token'] input").fill(TOKEN)
     form.locator("button[type=submit]").click()
     expect(form.locator(".form-status")).to_contain_text("Published")

@@ -152,3 +152,37 @@ def test_clear_is_not_offered_without_fault_clear_and_faults_of_an_earlier_run_a
         if gw is not None:
             gw.stop()
         shutil.rmtree(state, ignore_errors=True)
+
+
+def test_a_faults_recording_is_shown_with_its_download_duration_topics_and_size(tab):
+    """Issue 32: a confirmed fault's recording in its detail; the link downloads the MCAP file."""
+    from tests.support.procs import publisher, unique_topic
+
+    topic = unique_topic("ui/rec")
+    source = publisher("ui_recorded", topic, "std_msgs/msg/Float64", {"data": 1.0}, rate=20, counter="data")
+    gw = Gateway("--fault-rosbag-enabled", "--fault-rosbag-topics", topic, "--fault-rosbag-duration-s", "1",
+                 "--fault-rosbag-duration-after-s", "0.2")
+    pub = DiagPub("ui_pump", rate=5).matched()
+    try:
+        known(gw, "ui_pump")
+        tab.goto(gw.url + "/ui/")
+        poll_until(lambda: gw.get("/health").json()["x-medkit-bulk-data"]["rosbag_buffer_messages"] > 10, 20)
+        pub.set([{"name": "ui_pump: Pressure", "level": 2, "message": "too low"}])
+        held_by_host(gw, "UI_PUMP_PRESSURE")
+        recording = poll_until(lambda: gw.get("/apps/ui_pump/bulk-data/rosbags").json()["items"], 20)[0]
+        row = tab.locator(".fault[data-code='UI_PUMP_PRESSURE']")
+        expect(row).to_have_attribute("data-status", "CONFIRMED")
+        row.locator(".fault-head").click()
+        shown = row.locator(".snapshot.recording")
+        expect(shown.locator(".recording-topics")).to_have_text(topic)
+        expect(shown.locator(".recording-duration")).to_have_text(f"{recording['x-medkit']['duration_sec']:.1f} s")
+        expect(shown.locator(".recording-size")).to_contain_text("KB" if recording["size"] >= 1024 else "B")
+        link = shown.locator("a.recording-download")
+        href = link.get_attribute("href")
+        assert href.endswith(f"/bulk-data/rosbags/{recording['id']}"), href
+        body = tab.request.get(href)
+        assert body.status == 200 and body.body()[:8] == b"\x89MCAP0\r\n" and len(body.body()) == recording["size"]
+    finally:
+        pub.stop()
+        gw.stop()
+        source.stop()

@@ -5,12 +5,14 @@
 // Active faults come first, the most severe first, then the most recent; healed and cleared ones
 // after them, the most recent first.  The list has a bounded height and scrolls, and shows at most
 // MAX_SHOWN rows.  A row opens its detail: the freeze frames, each as a table of its values (a
-// diagnostic status's key/value pairs) or as JSON.  "Clear" is offered only when the gateway clears
+// diagnostic status's key/value pairs) or as JSON, and the fault's recordings (issue 32: what the
+// recorded topics carried before and after it, an MCAP file) with a download link, their duration,
+// topics and size.  "Clear" is offered only when the gateway clears
 // faults (capabilities.fault_clear, --allow-fault-clear); it sends DELETE with the page's token.
 // Faults that an earlier run left in the store (their nodes are not on the graph: /health's
 // x-medkit-faults.left_by_absent_nodes) are said to be so, and their rows are marked.
 
-import { describe, get, request, url } from "./api.js";
+import { describe, eventSource, get, request, url } from "./api.js";
 import { fill, formatTime, h } from "./dom.js";
 import { current, pathOf, scopeSwitch } from "./scope.js";
 
@@ -24,6 +26,18 @@ export function byUrgency(a, b) {
   if (active) return active;
   if (ACTIVE[a.status] && b.severity !== a.severity) return b.severity - a.severity;
   return (b.last_occurred || 0) - (a.last_occurred || 0);
+}
+
+/** 1536 -> "1.5 KB" (powers of 1024, as the disk caps are set). */
+export function formatBytes(n) {
+  const units = ["B", "KB", "MB", "GB"];
+  let value = Number(n) || 0;
+  let unit = 0;
+  while (value >= 1024 && unit < units.length - 1) {
+    value /= 1024;
+    unit += 1;
+  }
+  return `${unit ? value.toFixed(1) : value} ${units[unit]}`;
 }
 
 /** The rows of a freeze frame's data: a diagnostic status's message and values, or null (show JSON). */
@@ -66,7 +80,7 @@ export class FaultsPanel {
       this.host = (components.items || [])[0]?.id || null;
     } catch { /* the detail links wait for the next reload */ }
     await this.reload();
-    this.source = new EventSource(url("faults/stream"));
+    this.source = eventSource("faults/stream");
     for (const name of ["fault_confirmed", "fault_updated", "fault_cleared", "open"]) {
       this.source.addEventListener(name, () => this.soon());
     }
@@ -179,11 +193,27 @@ export class FaultsPanel {
       const body = await get(path);
       const frames = body.environment_data?.snapshots || [];
       fill(detail,
-        frames.length ? frames.map((s) => this.frame(s)) : h("p", { class: "muted small" }, "no freeze frame"),
+        frames.length ? frames.map((s) => (s.type === "rosbag" ? this.recording(s) : this.frame(s)))
+          : h("p", { class: "muted small" }, "no freeze frame"),
         h("div", { class: "fault-actions" }, clear, status));
     } catch (error) {
       fill(detail, h("span", { class: "muted small" }, `no detail: ${describe(error)}`));
     }
+  }
+
+  /** A fault recording: its download (the API path of its bulk_data_uri), duration, topics and size. */
+  recording(snapshot) {
+    const ext = snapshot["x-medkit"] || {};
+    const topics = ext.topics || [];
+    const link = h("a", { href: url(snapshot.bulk_data_uri.replace(/^\//, "")).href, download: "",
+      class: "recording-download" }, "Download MCAP");
+    return h("div", { class: "snapshot recording" },
+      h("div", { class: "muted small" }, "Recording" + (ext.captured_at ? ` · ${formatTime(ext.captured_at)}` : "")),
+      h("div", { class: "recording-facts" }, link,
+        h("span", { class: "recording-duration" }, `${Number(snapshot.duration_sec).toFixed(1)} s`),
+        h("span", { class: "recording-size" }, formatBytes(snapshot.size_bytes)),
+        h("span", { class: "muted small" }, `${ext.messages ?? 0} messages`)),
+      h("div", { class: "recording-topics small" }, topics.length ? topics.join(", ") : "no topic"));
   }
 
   frame(snapshot) {

@@ -8,7 +8,7 @@
 // HIDDEN_CLOSE_MS gives its stream back; it opens a new one when it is shown again.  destroy()
 // ends the stream (DELETE) when the user leaves the view or the page.
 
-import { describe, get, getToken } from "./api.js";
+import { describe, get, getToken, whoAmI } from "./api.js";
 import { fill, formatAge, h } from "./dom.js";
 import { IMAGE_TYPE, ImageCanvas } from "./image.js";
 import { JsonTree, numericValue, pathText, valueAt } from "./jsontree.js";
@@ -59,7 +59,9 @@ export class ItemView {
     this.timers = [];
     this.onVisibility = () => this._visibility();
     this.onToken = () => {
-      if (!this.sub && !this.destroyed && !document.hidden && getToken()) this._subscribe();
+      if (this.capabilities.authentication && !this.sub && !this.destroyed && !document.hidden && getToken()) {
+        this._subscribe();   // the legacy token typed in the header (a sign-in makes a new view)
+      }
     };
   }
 
@@ -155,6 +157,12 @@ export class ItemView {
   }
 
   _subscribe() {
+    if (this.capabilities.cyclic_subscriptions === false) {
+      // Identities on the gateway, and this page may not make a cyclic subscription (not signed in, or a
+      // viewer): the value is read once a second instead, as the role may.
+      this._poll();
+      return;
+    }
     if (this.capabilities.authentication && !getToken()) {
       // The gateway wants the token to make a subscription: wait for it (onToken), unrefused.
       this._streamState("waiting");
@@ -169,10 +177,27 @@ export class ItemView {
     this.sub.open();
   }
 
+  _poll() {
+    this._streamState("polling");
+    this.streamDetail.textContent = whoAmI() ? `read every second: a ${whoAmI().role} may not make cyclic subscriptions`
+      : "read every second: sign in for a live stream";
+    const query = this.type === IMAGE_TYPE ? "?bytes=base64" : "";
+    const read = async () => {
+      if (this.destroyed || document.hidden) return;
+      try {
+        this._frame({ timestamp: new Date().toISOString(), payload: await get(`${this.dataPath}${query}`) });
+      } catch (error) {
+        this._frame({ timestamp: new Date().toISOString(), error: error.body || { message: describe(error) } });
+      }
+    };
+    read();
+    this.timers.push(setInterval(read, 1000));
+  }
+
   _streamState(state, detail) {
     if (this.destroyed) return;
     const labels = { connecting: "connecting", live: "live", retrying: "reconnecting", closed: "closed",
-                     waiting: "waiting for the token" };
+                     waiting: "waiting for the token", polling: "polling" };
     this.streamEl.dataset.state = state;
     this.streamEl.textContent = labels[state] || state;
     this.streamDetail.textContent = state === "retrying" && detail ? describe(detail) : "";
@@ -304,7 +329,7 @@ export class ItemView {
       }, HIDDEN_CLOSE_MS);
     } else {
       clearTimeout(this.hiddenTimer);
-      if (!this.sub && !this.destroyed) this._subscribe();
+      if (!this.sub && !this.destroyed && this.capabilities.cyclic_subscriptions !== false) this._subscribe();
     }
   }
 

@@ -8,7 +8,7 @@
 //
 // The trigger lives LIFETIME_S at most, so a page that dies does not leave it behind for long.
 
-import { describe, request, url } from "./api.js";
+import { describe, eventSource, request } from "./api.js";
 import { h, timeEl } from "./dom.js";
 import { valueAt } from "./jsontree.js";
 
@@ -74,7 +74,7 @@ export class NotifyForm {
     this.button.textContent = "Stop";
     this.state.textContent = "watching";
     this.form.dataset.trigger = this.trigger.id;
-    const source = new EventSource(url(this.trigger.event_source));
+    const source = eventSource(this.trigger.event_source);
     this.source = source;
     source.onmessage = (message) => this._event(JSON.parse(message.data));
     source.onerror = () => {

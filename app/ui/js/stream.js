@@ -11,7 +11,7 @@
 // While the ROS worker restarts the stream stays open and carries error frames: those go to
 // onFrame like data frames.
 
-import { get, request, url } from "./api.js";
+import { eventSource, get, request } from "./api.js";
 
 const DURATION_S = 120;           // asked per subscription, renewed at half-time: a page that dies leaves it for 2 min at most
 const RETRY_MIN_MS = 500;
@@ -63,7 +63,7 @@ export class Subscription {
   }
 
   _listen() {
-    const source = new EventSource(url(this.sub.event_source));
+    const source = eventSource(this.sub.event_source);
     this.source = source;
     source.onopen = () => {
       this.retryMs = RETRY_MIN_MS;
