@@ -34,7 +34,6 @@ import time
 from common import pdeathsig
 from common import settings as config
 
-from .core.graph import settle
 from .core.requestlog import RequestIdFilter
 
 EXIT_OK = 0
@@ -121,6 +120,7 @@ class Worker:
 
         from .core.executor import RosExecutor
         from .core.family import Core, discover
+        from .core.graph import settle
         from .core.stats import Stats
 
         cfg = self.cfg
