@@ -27,13 +27,16 @@ node is answered ``node-unavailable``.  A node that was asked and did not
 answer is remembered for ``parameter_negative_cache_s``, so a hung node costs
 one request its timeout and the next ones nothing (medkit's issues 318 and
 531); one whose services were not matched in time (just started, a loaded
-machine) is not, or it would be refused that long right after its start.  A node whose services
+machine) is not, or it would be refused that long right after its start.  A
+remembered node is asked again at once when it answers one of the timed-out
+requests late (slow, not hung: the last ``MAX_LATE`` are listened for) or
+when a new start of it is in the graph.  A node whose services
 are not in the graph is answered at once.
 
 Defaults: ROS 2 has no "default" service.  The first time an operation reaches a
 node, its parameters are read and kept as that node's record, keyed by the
-node's start (the GID of its ``/parameter_events`` publisher: a restarted node
-is a new record).  A parameter first seen later (declared later: its
+node's start (the GIDs of its ``/parameter_events`` publishers in the graph:
+a restarted node is a new record).  A parameter first seen later (declared later: its
 ``/parameter_events`` "new" entry, or first read) joins the record with the
 value it had then.  Reset sets the recorded value back.
 
@@ -80,6 +83,8 @@ SETTLE = 0.25
 READS = ("list", "describe", "get")   # requests that may be sent again: asking twice changes nothing
 RESEND_AFTER = 0.5                   # seconds a read waits for its answer before it is sent again
 MAX_SENDS = 3                        # times one read is sent at most
+MAX_LATE = 16                        # requests of timed-out operations per node still listened for
+LATE = ("late", -1)                  # their entry in NodeClients.pending
 
 Step = tuple[str, Any]                          # (service kind, request)
 Operation = Generator[Step | list[Step], Any, Any]
@@ -101,7 +106,15 @@ class NodeClients:
         self.ready: dict[str, float] = {}  # kind -> when its server was first seen matched
 
     def open_calls(self) -> int:
-        return sum(len(p) for p in self.pending.values())
+        return sum(1 for p in self.pending.values() for entry in p.values() if entry is not LATE)
+
+    def await_late(self, sent: list[tuple[str, int]]) -> None:
+        """Keep listening for these requests' answers (at most ``MAX_LATE`` per set, the oldest go)."""
+        for kind, seq in sent:
+            self.pending[kind][seq] = LATE
+        late = [(kind, seq) for kind, p in self.pending.items() for seq, entry in p.items() if entry is LATE]
+        for kind, seq in late[:max(0, len(late) - MAX_LATE)]:
+            del self.pending[kind][seq]
 
 
 class Op:
@@ -180,16 +193,7 @@ class ParameterClients:
     def poll(self) -> None:
         """Take every response that came, send what waited for its service, end what ran out of time."""
         for clients in list(self._nodes.values()):
-            for kind, pending in clients.pending.items():
-                while pending:
-                    client = clients.clients[kind]
-                    with client.handle:
-                        header, response = client.handle.take_response(client.srv_type.Response)
-                    if header is None:
-                        break
-                    entry = pending.pop(header.request_id.sequence_number, None)
-                    if entry is not None and entry[0] in self._ops:
-                        self._answered(entry[0], entry[1], response)
+            self._take(clients)
         for op in list(self._line):  # first come, first served, as client sets come free
             if op in self._ops:
                 self._dispatch(op)
@@ -206,6 +210,23 @@ class ParameterClients:
             elif op in self._ops and now >= op.limit:
                 self._out_of_time(op)
         self._gauges()
+
+    def _take(self, clients: NodeClients) -> None:
+        """Take the set's responses: each to its operation; a late one to a timed-out operation clears
+        the node from the negative cache (it is slow, not hung); any other is dropped."""
+        for kind, pending in clients.pending.items():
+            while pending:
+                client = clients.clients[kind]
+                with client.handle:
+                    header, response = client.handle.take_response(client.srv_type.Response)
+                if header is None:
+                    break
+                entry = pending.pop(header.request_id.sequence_number, None)
+                if entry is LATE:
+                    if self._unavailable.pop(clients.fqn, None) is not None:
+                        log.info("%s answered a timed-out parameter request late: asked again", clients.fqn)
+                elif entry is not None and entry[0] in self._ops:
+                    self._answered(entry[0], entry[1], response)
 
     def sweep_idle(self) -> None:
         """Destroy the client sets unused for ``idle_s`` (none with calls open); read the events."""
@@ -230,9 +251,11 @@ class ParameterClients:
         """Start one operation on ``fqn``; ``done`` gets its result or an IpcError (maybe at once), by
         ``limit`` (a ``time.monotonic()``: the request's deadline) at the latest."""
         self._drain_events()
+        if fqn in self._unavailable and fqn in self._nodes:
+            self._take(self._nodes[fqn])  # a late answer since: slow, not hung
         cached = self._unavailable.get(fqn)
         now = time.monotonic()
-        if cached is not None and cached[1] != self.start_key(fqn):
+        if cached is not None and self.start_keys(fqn) - cached[1]:
             del self._unavailable[fqn]  # the node started again since it did not answer: ask this one
             cached = None
         until = cached[0] if cached is not None else None
@@ -269,18 +292,18 @@ class ParameterClients:
         for fqn in fqns:
             self.run(fqn, make(fqn), one(fqn), limit)
 
-    def start_key(self, fqn: str) -> Any:
-        """Which start of the node this is: the GID of its /parameter_events publisher (None: none)."""
+    def start_keys(self, fqn: str) -> frozenset:
+        """Which starts of the node are in the graph: the GIDs of their /parameter_events publishers (a
+        stopped start can linger beside the new one for a while).  A record or a negative-cache entry
+        made with some set holds while the graph shows no GID outside it."""
         namespace, _, name = fqn.rpartition("/")
         namespace = namespace or "/"
         try:
             infos = self.node.get_publishers_info_by_topic(EVENTS_TOPIC)
         except Exception:
-            return None
-        for info in infos:
-            if info.node_name == name and info.node_namespace == namespace:
-                return tuple(info.endpoint_gid)
-        return None
+            return frozenset()
+        return frozenset(tuple(info.endpoint_gid) for info in infos
+                         if info.node_name == name and info.node_namespace == namespace)
 
     # ---- driving an operation -------------------------------------------------------------
     def _advance(self, op: Op, response: Any) -> None:
@@ -422,7 +445,11 @@ class ParameterClients:
     def _timed_out(self, op: Op) -> None:
         self.stats.parameter_timeouts += 1
         if op.sent:  # it was asked and did not answer (hung): remembered, so the next requests cost nothing
-            self._unavailable[op.fqn] = (time.monotonic() + self.negative_cache_s, self.start_key(op.fqn))
+            self._unavailable[op.fqn] = (time.monotonic() + self.negative_cache_s, self.start_keys(op.fqn))
+            if op.holds is not None:  # unless it answers late after all
+                for sent in op.sent.values():
+                    op.holds.await_late(sent)
+                op.sent = {}
             log.warning("parameter service of %s did not respond within %g s (answered at once for %g s)",
                         op.fqn, self.timeout, self.negative_cache_s)
             what, retry = "did not respond", max(1, math.ceil(self.negative_cache_s))
@@ -516,7 +543,7 @@ class ParameterClients:
             record = self.records.get(event.node)
             if record is None or not event.new_parameters:
                 continue
-            if record.key != self.start_key(event.node):
-                continue
+            if not self.start_keys(event.node) <= record.key:
+                continue  # another start's record
             for p in event.new_parameters:
                 record.values.setdefault(p.name, p.value)

@@ -194,9 +194,9 @@ class ParameterCommands:
     def _record(self, fqn: str, read: tuple[list[str], list[ParameterValue]] | None = None
                 ) -> Generator[Step, Any, Record]:
         """The node's record of this start; made from ``read`` or from a read of every parameter."""
-        key = self.clients.start_key(fqn)
+        key = self.clients.start_keys(fqn)
         record = self.clients.records.get(fqn)
-        if record is not None and record.key == key:
+        if record is not None and key <= record.key:  # no start of the node since the record was made
             self.clients.records.move_to_end(fqn)
             return record
         if read is None:

@@ -89,7 +89,9 @@ def test_a_component_and_a_function_aggregate_their_apps(env):
     gw = env["gw"]
     host = gw.host()
     _items(gw, f"/apps/{env['b']}/logs", 2)
-    body = gw.get(f"/components/{host}/logs", params={"severity": "error"}).json()
+    # each HTTP worker learns the component's apps from its own graph snapshot: wait for this one's
+    body = poll_until(lambda: (lambda b: b if "b error line" in [i["message"] for i in b["items"]] else None)(
+        gw.get(f"/components/{host}/logs", params={"severity": "error"}).json()), 15, message="b's line aggregated")
     messages = [i["message"] for i in body["items"]]
     assert "a error line" in messages and "b error line" in messages and "a fatal line" in messages
     assert all(i["severity"] in ("error", "fatal") for i in body["items"])

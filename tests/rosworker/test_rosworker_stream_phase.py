@@ -6,7 +6,7 @@ whether or not it changed, and the ticks keep the interval when messages stop.
 
 In-process, as tests/rosworker/test_rosworker_streams.py: a real ROS thread and
 events socket; the pool is a stand-in whose messages' received stamps the test
-sets.  Through a real gateway and publisher: tests/app/test_app_stream_phase.py.
+sets.  Through a real gateway and publisher: tests/reliability/test_stream_phase.py (make reliability).
 """
 
 from __future__ import annotations

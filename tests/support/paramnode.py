@@ -8,7 +8,8 @@ Run as ``python -m tests.support.paramnode '<json spec>'``::
      "overrides": {"extra": 5},        # with automatically_declare_parameters_from_overrides
      "refuse": {"mode": ["auto"]},     # values a set callback refuses ("<value> is locked")
      "declare_on": {"trigger": "arm", "name": "late", "value": 3},  # set arm true: late is declared
-     "hang": false,                    # true: never runs a callback (its services never answer)
+     "hang": false,                    # true: never runs a callback (its services never answer);
+                                       # "until-usr1": none until SIGUSR1, then answers what waited
      "services": true,                 # false: no parameter services at all
      "count": 1}                       # n > 1: n nodes <node>_0 ... <node>_<n-1> in this one process,
                                        # each with "params" (and a parameter "index": its number)
@@ -24,7 +25,9 @@ client: it sets one parameter through the node's ``set_parameters`` service
 from __future__ import annotations
 
 import json
+import signal
 import sys
+import threading
 import time
 
 from bench import rosmain
@@ -108,7 +111,12 @@ def serve(spec: dict) -> None:
 
         node.create_timer(0.05, declare_when_armed)
     print("READY", flush=True)
-    if spec.get("hang"):
+    if spec.get("hang") == "until-usr1":  # slow, not hung: the requests wait, then get their answers
+        woken = threading.Event()
+        signal.signal(signal.SIGUSR1, lambda *_: woken.set())
+        while not stop.is_set() and not woken.is_set():
+            time.sleep(0.05)
+    elif spec.get("hang"):
         while not stop.is_set():  # in the graph, services and all, but nothing ever answers
             time.sleep(0.05)
         node.destroy_node()
