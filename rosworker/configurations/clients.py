@@ -1,21 +1,10 @@
-"""ROS 2 parameters of other nodes: the pooled parameter clients that run the ``param_*`` operations.
-
-Every node's parameters are read and changed through its own services
-(``rcl_interfaces``: ``list_parameters``, ``describe_parameters``,
-``get_parameters``, ``set_parameters``).  The clients are made and called on
-the ROS thread only, one set per node, pooled (LRU, at most
-``max_parameter_clients`` nodes; a set unused for ``parameter_client_idle_s``
-is destroyed by the idle sweep).  A request is sent with the client handle's
-``send_request`` and its response is taken with ``take_response`` by
-:meth:`ParameterClients.poll`, which the executor runs while calls are open
-(``RosExecutor.add_poller``): no future, no spin, nothing ever waits on this
-thread.
+"""The ``param_*`` operations on other nodes: their driving, their deadlines and the negative cache.
 
 One command is one *operation* per node (``commands.py``), written as a generator
 that yields ``(service, request)`` and is sent each response (:meth:`ParameterClients._advance`);
 the operations of a multi-node command (a listing, a reset of everything) start
 at once and the command is answered when the last one ends.  An operation needs
-its node's client set; when all ``max_parameter_clients`` sets are held by
+its node's client set (``pool.py``); when all ``max_parameter_clients`` sets are held by
 operations in flight, it waits in line (first come, first served) for one to
 be free, within the request's deadline (``pool-busy`` for a node still in line
 when the deadline comes), so a component of 200 nodes lists all of them.  Once
@@ -29,21 +18,14 @@ one request its timeout and the next ones nothing (medkit's issues 318 and
 531); one whose services were not matched in time (just started, a loaded
 machine) is not, or it would be refused that long right after its start.  A
 remembered node is asked again at once when it answers one of the timed-out
-requests late (slow, not hung: the last ``MAX_LATE`` are listened for) or
-when a new start of it is in the graph.  A node whose services
-are not in the graph is answered at once.
+requests late (slow, not hung: the pool listens for the last ``MAX_LATE``) or
+when a new start of it is in the graph (``defaults.py``'s start keys).  A node
+whose services are not in the graph is answered at once.
 
-Defaults: ROS 2 has no "default" service.  The first time an operation reaches a
-node, its parameters are read and kept as that node's record, keyed by the
-node's start (the GIDs of its ``/parameter_events`` publishers in the graph:
-a restarted node is a new record).  A parameter first seen later (declared later: its
-``/parameter_events`` "new" entry, or first read) joins the record with the
-value it had then.  Reset sets the recorded value back.
-
-One pooled ``/parameter_events`` subscription (read with ``take`` before each
-operation and on every sweep) keeps the records of parameters declared later;
-values themselves are never cached, so a change made elsewhere shows on the
-next read.
+Everything runs on the ROS thread; responses are taken by :meth:`ParameterClients.poll`,
+which the executor runs while operations are open (``RosExecutor.add_poller``):
+nothing ever waits on this thread.  A SIGTERM answers the operations in flight
+``shutdown`` (:meth:`ParameterClients.shutdown`), not their callers' deadline.
 
 The gateway's own node is answered by its own parameter service's callbacks,
 called directly, never through its services (that would wait on itself).
@@ -58,24 +40,16 @@ import time
 from collections.abc import Callable, Generator
 from typing import Any
 
-from rcl_interfaces.msg import ParameterEvent, ParameterValue
-from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters, SetParameters
 from rclpy.parameter_service import ParameterService
-from rclpy.qos import qos_profile_parameter_events, qos_profile_parameters
 
 from ipc.errors import IpcError
 
 from ..core.stats import Stats
+from .defaults import Defaults
+from .pool import LATE, SERVICE_NAMES, SERVICES, ClientPool, NodeClients, Sent
 
 log = logging.getLogger("sovd.rosworker.parameters")
 
-SERVICES = {"list": ListParameters, "describe": DescribeParameters, "get": GetParameters,
-            "set": SetParameters}
-SERVICE_NAMES = {"list": "list_parameters", "describe": "describe_parameters", "get": "get_parameters",
-                 "set": "set_parameters"}
-EVENTS_TOPIC = "/parameter_events"
-EVENTS_PER_DRAIN = 1000      # parameter events taken at most per look (the rest wait for the next)
-MAX_RECORDS = 4096           # nodes whose defaults are kept (the oldest record goes first)
 # A new client whose server shows up waits this long more before its first request: the server's reply
 # writer may not have matched the client's reader yet (rclpy only tells about the request side), and a
 # reply sent before that is lost (seen with hundreds of new clients at once).  services.py does the same.
@@ -83,38 +57,9 @@ SETTLE = 0.25
 READS = ("list", "describe", "get")   # requests that may be sent again: asking twice changes nothing
 RESEND_AFTER = 0.5                   # seconds a read waits for its answer before it is sent again
 MAX_SENDS = 3                        # times one read is sent at most
-MAX_LATE = 16                        # requests of timed-out operations per node still listened for
-LATE = ("late", -1)                  # their entry in NodeClients.pending
 
 Step = tuple[str, Any]                          # (service kind, request)
 Operation = Generator[Step | list[Step], Any, Any]
-
-
-# ---- the clients ----------------------------------------------------------------------------
-class NodeClients:
-    """One node's four parameter clients, the calls open on each, the operations that hold them and when
-    they were last used."""
-
-    __slots__ = ("fqn", "clients", "pending", "used", "ops", "ready")
-
-    def __init__(self, fqn: str, clients: dict[str, Any]):
-        self.fqn = fqn
-        self.clients = clients
-        self.pending: dict[str, dict[int, tuple[Op, int]]] = {kind: {} for kind in clients}
-        self.used = time.monotonic()
-        self.ops = 0              # operations in flight on this set: it is not given to another node
-        self.ready: dict[str, float] = {}  # kind -> when its server was first seen matched
-
-    def open_calls(self) -> int:
-        return sum(1 for p in self.pending.values() for entry in p.values() if entry is not LATE)
-
-    def await_late(self, sent: list[tuple[str, int]]) -> None:
-        """Keep listening for these requests' answers (at most ``MAX_LATE`` per set, the oldest go)."""
-        for kind, seq in sent:
-            self.pending[kind][seq] = LATE
-        late = [(kind, seq) for kind, p in self.pending.items() for seq, entry in p.items() if entry is LATE]
-        for kind, seq in late[:max(0, len(late) - MAX_LATE)]:
-            del self.pending[kind][seq]
 
 
 class Op:
@@ -140,8 +85,8 @@ class Op:
         self.many = False         # the step was a list: the generator gets a list of responses
         self.responses: list[Any] = []
         self.unsent: set[int] = set()            # requests of the step waiting for their service
-        self.sent: dict[int, list[tuple[str, int]]] = {}  # request index -> [(kind, sequence number)] sent
-        self.sent_at: dict[int, float] = {}              # request index -> when it was last sent
+        self.sent: dict[int, Sent] = {}          # request index -> [(kind, sequence number)] sent
+        self.sent_at: dict[int, float] = {}      # request index -> when it was last sent
 
 
 class _Own:
@@ -154,37 +99,24 @@ class _Own:
         return self._node
 
 
-class Record:
-    __slots__ = ("key", "values")
-
-    def __init__(self, key: Any):
-        self.key = key
-        self.values: dict[str, ParameterValue] = {}
-
-
 class ParameterClients:
-    """The pooled parameter clients and the ``param_*`` operations (ROS thread only)."""
+    """The ``param_*`` operations over the pooled parameter clients (ROS thread only)."""
 
-    def __init__(self, node, stats: Stats, *, timeout: float, negative_cache_s: float, max_clients: int,
-                 idle_s: float):
+    def __init__(self, node, stats: Stats, defaults: Defaults, *, timeout: float, negative_cache_s: float,
+                 max_clients: int, idle_s: float):
         self.node = node
         self.stats = stats
+        self.defaults = defaults
         self.timeout = timeout
         self.negative_cache_s = negative_cache_s
         self.max_clients = max_clients
-        self.idle_s = idle_s
         ns = node.get_namespace()
         self.own_fqn = (ns.rstrip("/") + "/" + node.get_name()) if ns != "/" else "/" + node.get_name()
-        self._nodes: collections.OrderedDict[str, NodeClients] = collections.OrderedDict()
+        self.pool = ClientPool(node, stats, max_clients=max_clients, idle_s=idle_s)
         self._ops: set[Op] = set()
         self._line: collections.deque[Op] = collections.deque()  # operations waiting for a client set
-        # fqn -> (monotonic time until which it is answered at once, the start key of the node that did not answer)
-        self._unavailable: dict[str, tuple[float, Any]] = {}
-        self.records: collections.OrderedDict[str, Record] = collections.OrderedDict()
-        self._events = None
-        # cyclic subscriptions on parameters (rosworker/configurations/feed.py): called with each /parameter_events message
-        self.listeners: list[Callable[[Any], None]] = []
-        stats.parameter_client_cap = max_clients
+        # fqn -> (monotonic time until which it is answered at once, the start keys of the node that did not answer)
+        self._unavailable: dict[str, tuple[float, frozenset]] = {}
 
     # ---- executor hooks -------------------------------------------------------------------
     def active(self) -> bool:
@@ -192,7 +124,7 @@ class ParameterClients:
 
     def poll(self) -> None:
         """Take every response that came, send what waited for its service, end what ran out of time."""
-        for clients in list(self._nodes.values()):
+        for clients in self.pool.sets():
             self._take(clients)
         for op in list(self._line):  # first come, first served, as client sets come free
             if op in self._ops:
@@ -214,27 +146,18 @@ class ParameterClients:
     def _take(self, clients: NodeClients) -> None:
         """Take the set's responses: each to its operation; a late one to a timed-out operation clears
         the node from the negative cache (it is slow, not hung); any other is dropped."""
-        for kind, pending in clients.pending.items():
-            while pending:
-                client = clients.clients[kind]
-                with client.handle:
-                    header, response = client.handle.take_response(client.srv_type.Response)
-                if header is None:
-                    break
-                entry = pending.pop(header.request_id.sequence_number, None)
-                if entry is LATE:
-                    if self._unavailable.pop(clients.fqn, None) is not None:
-                        log.info("%s answered a timed-out parameter request late: asked again", clients.fqn)
-                elif entry is not None and entry[0] in self._ops:
-                    self._answered(entry[0], entry[1], response)
+        for entry, response in clients.responses():
+            if entry is LATE:
+                if self._unavailable.pop(clients.fqn, None) is not None:
+                    log.info("%s answered a timed-out parameter request late: asked again", clients.fqn)
+            elif entry[0] in self._ops:
+                self._answered(entry[0], entry[1], response)
 
     def sweep_idle(self) -> None:
-        """Destroy the client sets unused for ``idle_s`` (none with calls open); read the events."""
-        self._drain_events()
-        cutoff = time.monotonic() - self.idle_s
-        for fqn, clients in list(self._nodes.items()):
-            if clients.used < cutoff and not clients.ops and not clients.open_calls():
-                self._destroy(fqn)
+        """Destroy the client sets unused for ``parameter_client_idle_s`` (none with calls open); forget the
+        nodes remembered as unavailable for long enough; read the events."""
+        self.defaults.drain()
+        self.pool.sweep()
         now = time.monotonic()
         for fqn in [f for f, (until, _) in self._unavailable.items() if until <= now]:
             del self._unavailable[fqn]
@@ -243,19 +166,20 @@ class ParameterClients:
     def shutdown(self) -> None:
         for op in list(self._ops):
             self._finish(op, IpcError("shutdown", "The gateway is shutting down"))
-        for fqn in list(self._nodes):
-            self._destroy(fqn)
+        self.pool.close()
+        self._gauges()
 
     # ---- the commands --------------------------------------------------------------------
     def run(self, fqn: str, gen: Operation, done: Callable[[Any], None], limit: float | None = None) -> None:
         """Start one operation on ``fqn``; ``done`` gets its result or an IpcError (maybe at once), by
         ``limit`` (a ``time.monotonic()``: the request's deadline) at the latest."""
-        self._drain_events()
-        if fqn in self._unavailable and fqn in self._nodes:
-            self._take(self._nodes[fqn])  # a late answer since: slow, not hung
+        self.defaults.drain()
+        clients = self.pool.get(fqn)
+        if fqn in self._unavailable and clients is not None:
+            self._take(clients)  # a late answer since: slow, not hung
         cached = self._unavailable.get(fqn)
         now = time.monotonic()
-        if cached is not None and self.start_keys(fqn) - cached[1]:
+        if cached is not None and self.defaults.start_keys(fqn) - cached[1]:
             del self._unavailable[fqn]  # the node started again since it did not answer: ask this one
             cached = None
         until = cached[0] if cached is not None else None
@@ -291,19 +215,6 @@ class ParameterClients:
 
         for fqn in fqns:
             self.run(fqn, make(fqn), one(fqn), limit)
-
-    def start_keys(self, fqn: str) -> frozenset:
-        """Which starts of the node are in the graph: the GIDs of their /parameter_events publishers (a
-        stopped start can linger beside the new one for a while).  A record or a negative-cache entry
-        made with some set holds while the graph shows no GID outside it."""
-        namespace, _, name = fqn.rpartition("/")
-        namespace = namespace or "/"
-        try:
-            infos = self.node.get_publishers_info_by_topic(EVENTS_TOPIC)
-        except Exception:
-            return frozenset()
-        return frozenset(tuple(info.endpoint_gid) for info in infos
-                         if info.node_name == name and info.node_namespace == namespace)
 
     # ---- driving an operation -------------------------------------------------------------
     def _advance(self, op: Op, response: Any) -> None:
@@ -352,7 +263,7 @@ class ParameterClients:
         operation without its client set gets in line for one."""
         if op.holds is None:
             try:
-                clients = self._clients_for(op.fqn, queued=bool(self._line) and self._line[0] is not op)
+                clients = self.pool.acquire(op.fqn, queued=bool(self._line) and self._line[0] is not op)
             except Exception as exc:  # noqa: BLE001 - rclpy refused a client: this node's answer
                 self._finish(op, IpcError("node-unavailable", f"No parameter clients for {op.fqn}: {exc}",
                                           {"node": op.fqn, "retry_after_s": 2}))
@@ -386,10 +297,7 @@ class ParameterClients:
                 ready = clients.ready[kind] = time.monotonic()
             if time.monotonic() - ready < SETTLE:
                 continue  # the server's reply writer may not have matched the client's reader yet
-            with client.handle:
-                seq = client.handle.send_request(request)
-            clients.pending[kind][seq] = (op, i)
-            op.sent[i] = [(kind, seq)]
+            op.sent[i] = [(kind, clients.send(kind, request, (op, i)))]
             op.sent_at[i] = time.monotonic()
             if not op.answering:
                 op.answering = True
@@ -407,21 +315,16 @@ class ParameterClients:
         for i, sent in op.sent.items():
             kind = sent[0][0]
             if kind in READS and len(sent) < MAX_SENDS and now - op.sent_at[i] >= RESEND_AFTER:
-                client = clients.clients[kind]
-                with client.handle:
-                    seq = client.handle.send_request(op.steps[i][1])
-                clients.pending[kind][seq] = (op, i)
-                sent.append((kind, seq))
+                sent.append((kind, clients.send(kind, op.steps[i][1], (op, i))))
                 op.sent_at[i] = now
                 self.stats.parameter_calls += 1
                 self.stats.parameter_resends += 1
 
-    def _forget(self, op: Op, sent: list[tuple[str, int]]) -> None:
+    def _forget(self, op: Op, sent: Sent) -> None:
         """No answer is awaited any more for these requests (a late one is dropped)."""
-        clients = self._nodes.get(op.fqn)
+        clients = self.pool.get(op.fqn)
         if clients is not None:
-            for kind, seq in sent:
-                clients.pending[kind].pop(seq, None)
+            clients.forget(sent)
 
     def _offers_services(self, fqn: str) -> bool:
         namespace, _, name = fqn.rpartition("/")
@@ -445,7 +348,8 @@ class ParameterClients:
     def _timed_out(self, op: Op) -> None:
         self.stats.parameter_timeouts += 1
         if op.sent:  # it was asked and did not answer (hung): remembered, so the next requests cost nothing
-            self._unavailable[op.fqn] = (time.monotonic() + self.negative_cache_s, self.start_keys(op.fqn))
+            self._unavailable[op.fqn] = (time.monotonic() + self.negative_cache_s,
+                                         self.defaults.start_keys(op.fqn))
             if op.holds is not None:  # unless it answers late after all
                 for sent in op.sent.values():
                     op.holds.await_late(sent)
@@ -478,72 +382,6 @@ class ParameterClients:
         self._gauges()
         op.done(result)
 
-    # ---- the pool --------------------------------------------------------------------------
-    def _clients_for(self, fqn: str, queued: bool = False) -> NodeClients | None:
-        """The node's client set, made (the least recently used free one goes at the cap); None when
-        every set is held by an operation in flight, or ``queued`` (others wait in line before it)."""
-        clients = self._nodes.get(fqn)
-        if clients is not None:
-            self._nodes.move_to_end(fqn)
-            return clients
-        if queued:
-            return None
-        while len(self._nodes) >= self.max_clients:
-            idle = next((f for f, c in self._nodes.items() if not c.ops and not c.open_calls()), None)
-            if idle is None:
-                return None
-            self._destroy(idle)
-        made = {}
-        try:
-            for kind, srv in SERVICES.items():
-                made[kind] = self.node.create_client(srv, f"{fqn}/{SERVICE_NAMES[kind]}",
-                                                     qos_profile=qos_profile_parameters)
-        except Exception:
-            for client in made.values():
-                self.node.destroy_client(client)
-            raise
-        clients = self._nodes[fqn] = NodeClients(fqn, made)
-        self._gauges()
-        return clients
-
-    def _destroy(self, fqn: str) -> None:
-        clients = self._nodes.pop(fqn, None)
-        if clients is None:
-            return
-        for client in clients.clients.values():
-            try:
-                self.node.destroy_client(client)
-            except Exception:
-                log.exception("destroying a parameter client of %s failed", fqn)
-        self._gauges()
-
     def _gauges(self) -> None:
-        self.stats.parameter_clients = len(self._nodes)
         self.stats.parameter_calls_in_flight = len(self._ops)
         self.stats.parameter_waiting = len(self._line)
-
-    # ---- /parameter_events ---------------------------------------------------------------------
-    def drain_events(self) -> None:
-        """Take the /parameter_events messages that came (the parameter feeds' ticks)."""
-        self._drain_events()
-
-    def _drain_events(self) -> None:
-        """Parameters declared since: they join their node's record with the value they were declared with."""
-        if self._events is None:
-            self._events = self.node.create_subscription(ParameterEvent, EVENTS_TOPIC, lambda _msg: None,
-                                                         qos_profile_parameter_events)
-        for _ in range(EVENTS_PER_DRAIN):
-            taken = self._events.handle.take_message(ParameterEvent, False)
-            if taken is None:
-                return
-            event = taken[0]
-            self.stats.parameter_events += 1
-            for listener in self.listeners:  # cyclic subscriptions on parameters (rosworker/configurations/feed.py)
-                listener(event)
-            record = self.records.get(event.node)
-            if record is None or not event.new_parameters:
-                continue
-            if not self.start_keys(event.node) <= record.key:
-                continue  # another start's record
-            for p in event.new_parameters:
-                record.values.setdefault(p.name, p.value)

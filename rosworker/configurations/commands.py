@@ -3,12 +3,12 @@
 One command is one *operation* per node, written as a generator that yields
 ``(service, request)`` (or a list of them, sent at once) and is sent each
 response; :class:`~rosworker.configurations.clients.ParameterClients` drives it
-(its clients, deadlines, the line for a client set).  The operations of a
+(its deadlines, the line for a client set of ``pool.py``).  The operations of a
 multi-node command (a listing, a reset of everything) start at once and the
 command is answered when the last one ends.
 
 Defaults: ROS 2 has no "default" service.  The first time an operation reaches a
-node, its parameters are read and kept as that node's record (``clients.records``,
+node, its parameters are read and kept as that node's record (``defaults.py``,
 keyed by the node's start); reset sets the recorded value back.
 """
 
@@ -24,7 +24,8 @@ from ipc.errors import IpcError
 
 from ..core import args
 from ..core.executor import Task
-from .clients import MAX_RECORDS, Operation, ParameterClients, Record, Step
+from .clients import Operation, ParameterClients, Step
+from .defaults import Defaults, Record
 from .values import descriptor_json, refused, same_value, to_value, type_name, value_json
 
 T = ParameterType
@@ -66,8 +67,9 @@ def _answer(task: Task) -> Callable[[Any], None]:
 class ParameterCommands:
     """The ``param_*`` handlers over the pooled parameter clients (ROS thread only)."""
 
-    def __init__(self, clients: ParameterClients):
+    def __init__(self, clients: ParameterClients, defaults: Defaults):
         self.clients = clients
+        self.defaults = defaults
         self.run = clients.run
         self.run_all = clients.run_all
 
@@ -179,7 +181,7 @@ class ParameterCommands:
         """The value of a get_parameters answer for one name (first seen: recorded), or 404."""
         if not got.values or got.values[0].type == T.PARAMETER_NOT_SET:
             raise IpcError("no-such-parameter", f"Parameter not found: {name}", {"name": name})
-        record = self.clients.records.get(fqn)
+        record = self.defaults.records.get(fqn)
         if record is not None:
             record.values.setdefault(name, got.values[0])
         return got.values[0]
@@ -194,16 +196,11 @@ class ParameterCommands:
     def _record(self, fqn: str, read: tuple[list[str], list[ParameterValue]] | None = None
                 ) -> Generator[Step, Any, Record]:
         """The node's record of this start; made from ``read`` or from a read of every parameter."""
-        key = self.clients.start_keys(fqn)
-        record = self.clients.records.get(fqn)
+        key = self.defaults.start_keys(fqn)
+        record = self.defaults.records.get(fqn)
         if record is not None and key <= record.key:  # no start of the node since the record was made
-            self.clients.records.move_to_end(fqn)
+            self.defaults.records.move_to_end(fqn)
             return record
         if read is None:
             read = yield from self._read_all(fqn)
-        record = Record(key)
-        record.values.update(zip(*read, strict=True))
-        self.clients.records[fqn] = record
-        while len(self.clients.records) > MAX_RECORDS:
-            self.clients.records.popitem(last=False)
-        return record
+        return self.defaults.keep(fqn, key, read)

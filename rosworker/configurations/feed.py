@@ -11,7 +11,7 @@ parameter answers.
 One read (get and describe, deadline ``parameter_service_timeout``, through the
 pooled parameter clients) when the subscription starts and every ``RESYNC``
 seconds after; between reads the value follows ``/parameter_events`` (the
-parameter clients' one subscription, drained at each tick), so that a change
+subscription of ``defaults.py``, drained at each tick), so that a change
 made by another client is framed at the next tick without a call to the node.
 A parameter deleted, or a read that fails, gives error frames until a later
 read or event brings a value back.
@@ -29,6 +29,7 @@ from ipc.errors import IpcError
 from ..core.samplers import Feed, TimedSampler
 from .clients import ParameterClients
 from .commands import ParameterCommands
+from .defaults import Defaults
 from .values import type_name, value_json
 
 RESYNC = 10.0          # seconds between two reads of a streamed parameter (events carry the changes between)
@@ -51,12 +52,14 @@ class _Parameter(Feed):
 class ParameterFeed(TimedSampler):
     kind = "parameter"
 
-    def __init__(self, core: Any, parameters: ParameterClients, commands: ParameterCommands):
+    def __init__(self, core: Any, parameters: ParameterClients, defaults: Defaults,
+                 commands: ParameterCommands):
         super().__init__(core)
         self.parameters = parameters
+        self.defaults = defaults
         self.commands = commands
         self._by_node: dict[str, dict[str, _Parameter]] = {}   # feeds by node fqn
-        parameters.listeners.append(self._event)
+        defaults.listeners.append(self._event)
 
     def check(self, sub: Any) -> None:
         for name in ("node", "name", "id"):
@@ -79,7 +82,7 @@ class ParameterFeed(TimedSampler):
             self._by_node.pop(feed.sub.target["node"], None)
 
     def frame(self, feed: _Parameter) -> None:
-        self.parameters.drain_events()
+        self.defaults.drain()
         if not feed.reading and time.monotonic() - feed.read_at >= RESYNC:
             self._read(feed)
         if feed.error is not None:

@@ -56,15 +56,23 @@ def sub(kind, target, interval="fast"):
 
 
 class Params:
-    def __init__(self):
-        self.listeners = []
-        self.reads: list = []
+    """The parameter clients: the reads started, their ``done`` kept to answer them later."""
 
-    def drain_events(self):
-        pass
+    def __init__(self):
+        self.reads: list = []
 
     def run(self, node, gen, done):
         self.reads.append(done)
+
+
+class Defaults:
+    """The /parameter_events drain: the listeners the feed adds; a test calls them with its events."""
+
+    def __init__(self):
+        self.listeners = []
+
+    def drain(self):
+        pass
 
 
 class Commands:
@@ -78,9 +86,9 @@ def double(x):
 
 @pytest.fixture
 def world():
-    executor, events, params = Executor(), Events(), Params()
-    feed = ParameterFeed(SimpleNamespace(executor=executor, events=events), params, Commands())
-    return SimpleNamespace(executor=executor, events=events, params=params, feed=feed)
+    executor, events, params, defaults = Executor(), Events(), Params(), Defaults()
+    feed = ParameterFeed(SimpleNamespace(executor=executor, events=events), params, defaults, Commands())
+    return SimpleNamespace(executor=executor, events=events, params=params, defaults=defaults, feed=feed)
 
 
 def test_a_parameter_event_that_overtakes_the_read_wins(world):
@@ -89,7 +97,7 @@ def test_a_parameter_event_that_overtakes_the_read_wins(world):
     world.executor.fire()
     assert world.events.frames == []  # no value yet: no frame
     event = ParameterEvent(node="/t", changed_parameters=[Parameter(name="ratio", value=double(0.75))])
-    for listener in world.params.listeners:
+    for listener in world.defaults.listeners:
         listener(event)
     world.params.reads[0]({"name": "ratio", "value": 0.5, "type": "double", "description": "d"})
     world.executor.fire()
@@ -104,12 +112,12 @@ def test_a_deleted_parameter_gives_error_frames_until_it_is_back(world):
     s = sub("parameter", {"node": "/t", "name": "ratio", "id": "ratio"})
     world.feed.watch(s, lambda: None)
     world.params.reads[0]({"name": "ratio", "value": 0.5, "type": "double"})
-    for listener in world.params.listeners:
+    for listener in world.defaults.listeners:
         listener(ParameterEvent(node="/t", deleted_parameters=[Parameter(name="ratio")]))
         listener(ParameterEvent(node="/other", new_parameters=[Parameter(name="ratio", value=double(9.0))]))
     world.executor.fire()
     assert world.events.frames[-1][1]["error"]["code"] == "no-such-parameter"
-    for listener in world.params.listeners:
+    for listener in world.defaults.listeners:
         listener(ParameterEvent(node="/t", new_parameters=[Parameter(name="ratio", value=double(0.25))]))
     world.executor.fire()
     assert json.loads(world.events.frames[-1][2])["parameter"]["value"] == 0.25
