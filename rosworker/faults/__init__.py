@@ -1,6 +1,7 @@
 """The faults family: the robot's ``/diagnostics`` as SOVD faults, kept in the state dir's store.
 
 - ``manager.py``: the faults' lifecycle from the statuses of ``/diagnostics``;
+- ``events.py``: the faults' events (ids that never go backwards, kept for replay, published, observed);
 - ``model.py``: statuses, codes, medkit's fault body; ``sources.py``: who reported a status;
 - ``snapshots.py``: freeze frames (the data family's topics, through the core's samplers);
 - ``store.py``: the faults and their events in the store; ``left.py``: faults left by absent nodes;

@@ -43,16 +43,9 @@ At confirmation freeze frames are taken (``snapshots.py``): the status's
 key/value pairs, and the newest message of each topic that
 ``fault_snapshot_topics`` names for the code.
 
-Events (``fault_confirmed``, ``fault_updated``, ``fault_cleared``) get ids
-that never go backwards: a start's ids begin at its epoch (the wall clock in
-microseconds, or the last stored id + 1 if that is higher) and count up by
-one, so a new start's ids are above every earlier one's even when the store
-is in memory only (an unwritable state dir, a corrupt file moved aside).  They
-stay plain integers (the SSE ``id:``, ``Last-Event-ID``).  Events are kept
-(``MAX_EVENTS``, also in the store) for ``Last-Event-ID`` replay, and are
-published on the events channel (``ipc/events.py``, key ``f|``) for the HTTP
-workers' fault streams; the observers of ``faults`` (triggers, ``observable.py``)
-are told of each.
+Each change of a confirmed fault is an event (``fault_confirmed``,
+``fault_updated``, ``fault_cleared``): ``events.py`` numbers, keeps, stores,
+publishes it and tells the observers of ``faults``.
 """
 
 from __future__ import annotations
@@ -63,10 +56,9 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from ipc import events as channel
-from ipc import protocol
 from ipc.errors import IpcError
 
+from .events import FaultEvents
 from .model import (
     ACTIVE,
     CLEARED,
@@ -87,7 +79,7 @@ from .model import (
 from .observable import FaultObservable
 from .snapshots import FreezeFrames
 from .sources import Attribution
-from .store import MAX_EVENTS, FaultTables
+from .store import FaultTables
 
 log = logging.getLogger("sovd.rosworker.faults")
 
@@ -119,7 +111,6 @@ class FaultManager:
         self.store = store
         self.attribution = Attribution(node, graph, endpoints)
         self.frames = FreezeFrames(samplers, snapshot_topics)
-        self.send = send
         self.confirm_count = confirm_count
         self.confirm_s = confirm_s
         self.heal_count = heal_count
@@ -130,8 +121,6 @@ class FaultManager:
         # code -> [monotonic last report, status name, source, stale already reported, source guessed]
         self.seen: collections.OrderedDict[str, list] = collections.OrderedDict()
         self.values: dict[str, dict[str, Any]] = {}       # code -> the last failing status (freeze frame)
-        self.events: collections.deque[tuple[int, dict[str, Any]]] = collections.deque(maxlen=MAX_EVENTS)
-        self.next_event_id = 1
         self._dirty: dict[str, float] = {}                 # code -> monotonic of the last write
         self._unwritten: set[str] = set()
         self._code_cache: dict[str, str] = {}
@@ -143,6 +132,7 @@ class FaultManager:
         self._drained = time.monotonic()  # the last moment the subscription's queue was seen empty
         # faults as an observable collection (triggers; core/notifier.py): told of every fault event
         self.observable = FaultObservable(stats)
+        self.events = FaultEvents(executor, store, send, self.observable)
         self.left: dict[str, Any] = {}  # /health's counts of the faults left by absent nodes (left.py)
         # the extension points "fault_confirmed" and "fault_snapshots" (core/family.py Core.extend; the
         # faults family hands their lists here): fn(code, sources) told of each confirmation, and
@@ -162,12 +152,7 @@ class FaultManager:
                     # reported again, or stale after fault_stale_s: a driver that died with the gateway
                     self.seen[code] = [now, record.get("name", code), (record.get("sources") or [TOPIC])[0], False,
                                        bool(record.get("guessed"))]
-        for event_id, event in events:
-            self.events.append((event_id, event))
-        # The ids of this start begin at its epoch (wall clock, µs), above every id of an earlier
-        # start: a stream that stays open across a ROS worker restart, or a client that reconnects with
-        # Last-Event-ID, never takes a new event for one it has (a store in memory only keeps no ids).
-        self.next_event_id = max(time.time_ns() // 1000, self.events[-1][0] + 1 if self.events else 1)
+        self.events.load(events)
         self.publish_stats()
 
     def start(self) -> None:
@@ -332,7 +317,7 @@ class FaultManager:
             return
         if changed:
             if record["confirmed"]:
-                self._event("fault_updated", record)
+                self.events.add("fault_updated", record)
             self._write(code)
         else:
             self._unwritten.add(code)
@@ -347,7 +332,7 @@ class FaultManager:
         record["status"] = HEALED if record["oks"] >= self.heal_count else PREPASSED
         if record["status"] != before:
             if record["confirmed"]:
-                self._event("fault_updated", record)
+                self.events.add("fault_updated", record)
             self._write(code)
         else:
             self._unwritten.add(code)
@@ -356,7 +341,7 @@ class FaultManager:
         record["status"] = CONFIRMED
         record["confirmed"] = True
         record["snapshots"] = self.frames.take(record, self.values.get(record["code"]), wall, stale)
-        self._event("fault_confirmed", record)
+        self.events.add("fault_confirmed", record)
         self._write(record["code"])
         for fn in self.on_confirmed:  # e.g. bulk data: what led up to it is recorded
             self.executor.guarded("the fault's confirmation hook", fn, record["code"], list(record["sources"]))
@@ -382,17 +367,7 @@ class FaultManager:
                         "raise max_faults or clear faults", self.max_faults, self.refused)
         return False
 
-    # ---- events and writes ------------------------------------------------------------------------------
-    def _event(self, event_type: str, record: dict[str, Any]) -> None:
-        event_id = self.next_event_id
-        self.next_event_id += 1
-        event = {"event_type": event_type, "fault": public(record), "timestamp": time.time()}
-        self.events.append((event_id, event))
-        self.store.event(event_id, event)
-        self.send([channel.FAULT_KEY, protocol.pack({"id": event_id, **event})])
-        if self.observable.observers:  # faults triggers: evaluated on the event, nothing when none watches
-            self.executor.guarded("the faults triggers", self.observable.on_fault, event_type, event["fault"])
-
+    # ---- writes -----------------------------------------------------------------------------------------
     def _write(self, code: str, changed: bool = True) -> None:
         self._unwritten.discard(code)
         self._dirty[code] = time.monotonic()
@@ -451,7 +426,7 @@ class FaultManager:
             if record is None or record["status"] == CLEARED:
                 continue
             record.update(status=CLEARED, fails=0, oks=0, confirmed=False, cleared_ns=wall)
-            self._event("fault_cleared", record)
+            self.events.add("fault_cleared", record)
             self._write(code, changed=False)  # /health once, below
             cleared.append(code)
         if cleared:
@@ -459,6 +434,10 @@ class FaultManager:
         return cleared
 
     def events_after(self, after: int) -> list[dict[str, Any]]:
-        return [{"id": i, **e} for i, e in self.events if i > after]
+        return self.events.after(after)
+
+    @property
+    def next_event_id(self) -> int:
+        return self.events.next_id
 
 

@@ -59,9 +59,9 @@ def test_a_fault_event_is_told_in_scope_with_the_fault_and_its_event_type():
 
 
 def test_the_manager_tells_its_observers_and_nothing_while_none_watches(tmp_path):
-    m = FaultManager(None, None, Pool(), Stats(), tables(tmp_path), confirm_count=1)
+    executor = type("E", (), {"guarded": staticmethod(lambda where, fn, *a: fn(*a))})()
+    m = FaultManager(None, executor, Pool(), Stats(), tables(tmp_path), confirm_count=1)
     m.load()
-    m.executor = type("E", (), {"guarded": staticmethod(lambda where, fn, *a: fn(*a))})()
     m.on_array(array(("x", 2)))          # nobody watches: not even asked
     watcher = Observer(json.dumps({"nodes": ["/diagnostics"], "code": None}))
     m.observable.stats.trigger_messages = 0
