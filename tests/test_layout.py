@@ -288,34 +288,40 @@ def used_packages(path) -> set[str]:
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
             names.add(node.module)
         elif isinstance(node, ast.Constant) and isinstance(node.value, str):
-            names.update(re.findall(r"^(?:tests|bench)(?:\.\w+)*$", node.value))
+            names.update(re.findall(r"^(?:tests|bench)(?:\.\w+)+$", node.value))
     return names
 
 
-def uses_against_the_layout(files_of) -> list[str]:
+def uses_against_the_layout(root) -> list[str]:
     offenders = []
     for top, banned in NOT_USED.items():
-        for path in files_of(top):
-            offenders += [f"{path}: {name}" for name in sorted(used_packages(path))
+        for path in sorted(p for p in (root / top).rglob("*.py") if "__pycache__" not in p.parts):
+            offenders += [f"{path.relative_to(root)}: {name}" for name in sorted(used_packages(path))
                           if name.split(".")[0] in banned]
     return offenders
 
 
 def test_the_bench_uses_nothing_of_tests_and_the_harness_neither():
-    offenders = uses_against_the_layout(lambda top: python_files(top))
+    offenders = uses_against_the_layout(REPO)
     assert not offenders, "uses against the layout:\n" + "\n".join(offenders)
 
 
+def probe_tree(root, files: dict[str, str]) -> None:
+    """Write ``files`` (a path under ``root`` -> its text), folders made as needed."""
+    for rel, text in files.items():
+        (root / rel).parent.mkdir(parents=True, exist_ok=True)
+        (root / rel).write_text(text)
+
+
 def test_the_uses_gate_catches_an_offender(tmp_path):
-    for rel, text in (("bench/run.py", "from tests.support.gateway import Gateway\n"),
-                      ("bench/ok.py", "from common.harness.gateway import Gateway\nNAME = 'tests of the bench'\n"),
-                      ("bench/spawn.py", "ARGV = ['-m', 'tests.support.rospub']\n"),
-                      ("common/harness/proc.py", "def f():\n    import bench.procs\n"),
-                      ("demo/robot.py", "from tests.support import rosops\n")):
-        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
-        (tmp_path / rel).write_text(text)
-    found = uses_against_the_layout(lambda top: sorted((tmp_path / top).rglob("*.py")))
-    assert [line.replace(f"{tmp_path}/", "") for line in found] == [
+    probe_tree(tmp_path, {
+        "bench/run.py": "from tests.support.gateway import Gateway\n",
+        "bench/ok.py": "from common.harness.gateway import Gateway\nNAME = 'tests of the bench'\n",
+        "bench/spawn.py": "ARGV = ['-m', 'tests.support.rospub']\n",
+        "common/harness/proc.py": "def f():\n    import bench.procs\n",
+        "demo/robot.py": "from tests.support import rosops\n"})
+    found = uses_against_the_layout(tmp_path)
+    assert found == [
         "bench/run.py: tests.support.gateway", "bench/spawn.py: tests.support.rospub",
         "common/harness/proc.py: bench.procs", "demo/robot.py: tests.support"], found
 
@@ -347,13 +353,12 @@ def test_no_gateway_module_imports_the_harness():
 
 
 def test_the_harness_gate_catches_an_offender(tmp_path):
-    for rel, text in (("app/core/x.py", "from common.harness.procs import Proc\n"),
-                      ("common/settings.py", "from .harness import gateway\n"),
-                      ("common/families.py", "def f():\n    from . import harness\n"),
-                      ("supervisor/ok.py", "from common import settings\n"),
-                      ("common/harness/gateway.py", "from common.harness import procs\n")):
-        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
-        (tmp_path / rel).write_text(text)
+    probe_tree(tmp_path, {
+        "app/core/x.py": "from common.harness.procs import Proc\n",
+        "common/settings.py": "from .harness import gateway\n",
+        "common/families.py": "def f():\n    from . import harness\n",
+        "supervisor/ok.py": "from common import settings\n",
+        "common/harness/gateway.py": "from common.harness import procs\n"})
     found = harness_imports(tmp_path)
     assert sorted(line.split(": ")[0] for line in found) == [
         "app/core/x.py", "common/families.py", "common/settings.py"], found
