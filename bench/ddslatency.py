@@ -18,7 +18,7 @@ import sys
 import threading
 import time
 
-from bench import rosmain
+from common.harness import rosmain
 
 
 def main() -> int:

@@ -14,7 +14,7 @@ import time
 
 import psutil
 
-from bench.roslogger import LoggerNode
+from common.harness.roslogger import LoggerNode
 
 from .procs import measure_cpu, ros_helper
 

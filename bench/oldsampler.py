@@ -20,7 +20,7 @@ import random
 import sys
 import time
 
-from bench import rosmain
+from common.harness import rosmain
 
 
 def main() -> int:

@@ -11,11 +11,10 @@ from __future__ import annotations
 
 import sys
 
-from bench import rosmain
+from common.harness import rosmain
 
 
 def main() -> int:
-    import rclpy
     from rcl_interfaces.msg import Log
     from rclpy.duration import Duration
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -25,14 +24,8 @@ def main() -> int:
     node, stop = rosmain.start("bench_rosout_floor", start_parameter_services=False, enable_rosout=False)
     profile = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=ROSOUT_DEPTH, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL, lifespan=Duration(seconds=ROSOUT_LIFESPAN_S))
-    sub = node.create_subscription(Log, "/rosout", lambda _m: None, profile)
-    print("READY", flush=True)
-    while not stop.wait(0.5):
-        pass
-    node.destroy_subscription(sub)
-    node.destroy_node()
-    rclpy.try_shutdown()
-    return 0
+    node.create_subscription(Log, "/rosout", lambda _m: None, profile)
+    return rosmain.hold(node, stop)
 
 
 if __name__ == "__main__":

@@ -70,9 +70,9 @@ import psutil
 import requests
 
 from app.core.debug import echo_endpoint
+from common.harness.gateway import Gateway
+from common.harness.procs import Proc, poll_until, private_ros_domain
 from ipc.client import RosWorkerClient
-from tests.support.gateway import Gateway
-from tests.support.procs import Proc, poll_until, private_ros_domain
 
 from . import load as loadgen
 from . import operations, streams

@@ -9,25 +9,31 @@ import sys
 
 import pytest
 
-from tests.support.procs import REPO
+from common.harness.procs import REPO
 
 # Outside the gateway proper: the demo robot, the ROS nodes of the tests (tests/support/) and of
-# the benchmark (bench/: publishers, the DDS floor, the subscribe-per-request baseline).
+# the benchmark (bench/: publishers, the DDS floor, the subscribe-per-request baseline), and the ROS
+# programs both run (common/harness/: no gateway module imports it, see below).
 EXEMPT = ("rosworker", "tests", "demo", "bench")
+HARNESS = ("common", "harness")
 CREATES = re.compile(r"\bcreate_(subscription|publisher|callback_group|generic_subscription)\s*\(")
 IMPORTS_RCLPY = re.compile(r"^\s*(import|from)\s+rclpy\b", re.MULTILINE)
 
 
 def python_files(*tops: str):
+    """The modules under each of ``tops``; common/harness/ only when asked for by name ("common/harness")."""
     for top in tops:
-        yield from (p for p in (REPO / top).rglob("*.py") if "__pycache__" not in p.parts)
+        inside = tuple(top.split("/")) == HARNESS
+        yield from (p for p in (REPO / top).rglob("*.py") if "__pycache__" not in p.parts
+                    and (inside or p.relative_to(REPO).parts[:2] != HARNESS))
 
 
 def test_only_the_ros_worker_creates_subscriptions_publishers_or_callback_groups():
     offenders = []
     for path in REPO.rglob("*.py"):
         rel = path.relative_to(REPO)
-        if rel.parts[0] in EXEMPT or rel.parts[0].startswith(".") or "__pycache__" in rel.parts:
+        if rel.parts[0] in EXEMPT or rel.parts[:2] == HARNESS or rel.parts[0].startswith(".") \
+                or "__pycache__" in rel.parts:
             continue
         for number, line in enumerate(path.read_text().splitlines(), 1):
             if CREATES.search(line):
@@ -80,7 +86,9 @@ MAY_IMPORT = {
     "app": {"ipc", "common"},
     "supervisor": {"ipc", "common"},
     "rosworker": {"ipc", "common"},
-    "demo": {"supervisor"},  # demo/run.py starts the demo robot with the supervisor's Child
+    "demo": {"supervisor", "common"},  # demo/run.py: the supervisor's Child; the robot: common/harness/
+    # the harness (beside common/, imported by no gateway module): the fleet's wire, the ROS worker's client
+    "common/harness": {"common", "ipc"},
 }
 
 
@@ -99,7 +107,7 @@ def test_each_package_imports_only_the_packages_below_it():
     offenders = []
     for top, allowed in MAY_IMPORT.items():
         for path in python_files(top):
-            wrong = {n for n in imported_packages(path) if n in OURS and n != top} - allowed
+            wrong = {n for n in imported_packages(path) if n in OURS and n != top.split("/")[0]} - allowed
             if wrong:
                 offenders.append(f"{path.relative_to(REPO)} imports {sorted(wrong)}")
     assert not offenders, "imports against the layout:\n" + "\n".join(offenders)
@@ -265,28 +273,95 @@ def test_the_cycle_gate_catches_a_cycle(tmp_path):
 
 
 # The bench runs from tests/ (tests/reliability/test_bench_smoke.py), not the other way round: a test
-# may move without breaking ``make bench``.  Its one link to tests/ is the process harness both
-# start the gateway with (a private ROS domain, processes with deadlines, the gateway as an
-# operator starts it); its ROS programs and load clients are its own (bench/).
-BENCH_MAY_IMPORT_FROM_TESTS = {"tests.support.procs", "tests.support.gateway"}
+# may move without breaking ``make bench``.  What the bench shares with the tests (a private ROS domain,
+# processes with deadlines, the gateway as an operator starts it, ROS programs both run) is
+# common/harness/, which neither owns: it uses neither, and the bench uses nothing of tests/.
+NOT_USED = {"bench": {"tests"}, "common/harness": {"tests", "bench"}, "demo": {"tests", "bench"}}
 
 
-def test_the_bench_imports_nothing_from_tests_but_the_process_harness():
+def used_packages(path) -> set[str]:
+    """The dotted names ``path`` imports (absolutely) or runs (``"-m", "tests.support.x"``)."""
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names.add(node.module)
+        elif isinstance(node, ast.Constant) and isinstance(node.value, str):
+            names.update(re.findall(r"^(?:tests|bench)(?:\.\w+)+$", node.value))
+    return names
+
+
+def uses_against_the_layout(root) -> list[str]:
     offenders = []
-    for path in python_files("bench"):
-        tree = ast.parse(path.read_text(), str(path))
-        for node in ast.walk(tree):
-            names = []
-            if isinstance(node, ast.Import):
-                names = [alias.name for alias in node.names]
-            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-                names = [node.module] if node.module != "tests.support" else \
-                    [f"tests.support.{alias.name}" for alias in node.names]
-            elif isinstance(node, ast.Constant) and isinstance(node.value, str):
-                names = re.findall(r"^tests\.[\w.]+$", node.value)  # "-m", "tests.support.x"
-            offenders += [f"{path.relative_to(REPO)}: {n}" for n in names
-                          if (n == "tests" or n.startswith("tests.")) and n not in BENCH_MAY_IMPORT_FROM_TESTS]
-    assert not offenders, "bench/ uses tests/:\n" + "\n".join(offenders)
+    for top, banned in NOT_USED.items():
+        for path in sorted(p for p in (root / top).rglob("*.py") if "__pycache__" not in p.parts):
+            offenders += [f"{path.relative_to(root)}: {name}" for name in sorted(used_packages(path))
+                          if name.split(".")[0] in banned]
+    return offenders
+
+
+def test_the_bench_uses_nothing_of_tests_and_the_harness_neither():
+    offenders = uses_against_the_layout(REPO)
+    assert not offenders, "uses against the layout:\n" + "\n".join(offenders)
+
+
+def probe_tree(root, files: dict[str, str]) -> None:
+    """Write ``files`` (a path under ``root`` -> its text), folders made as needed."""
+    for rel, text in files.items():
+        (root / rel).parent.mkdir(parents=True, exist_ok=True)
+        (root / rel).write_text(text)
+
+
+def test_the_uses_gate_catches_an_offender(tmp_path):
+    probe_tree(tmp_path, {
+        "bench/run.py": "from tests.support.gateway import Gateway\n",
+        "bench/ok.py": "from common.harness.gateway import Gateway\nNAME = 'tests of the bench'\n",
+        "bench/spawn.py": "ARGV = ['-m', 'tests.support.rospub']\n",
+        "common/harness/proc.py": "def f():\n    import bench.procs\n",
+        "demo/robot.py": "from tests.support import rosops\n"})
+    found = uses_against_the_layout(tmp_path)
+    assert found == [
+        "bench/run.py: tests.support.gateway", "bench/spawn.py: tests.support.rospub",
+        "common/harness/proc.py: bench.procs", "demo/robot.py: tests.support"], found
+
+
+# The harness starts the gateway's processes from outside; no module of the gateway imports it (so that
+# rclpy, zenoh and the tests' clients in it never load in a gateway process, and common/'s rules above
+# may leave it out).
+PRODUCT = ("app", "rosworker", "ipc", "supervisor", "common")
+
+
+def harness_imports(root) -> list[str]:
+    offenders = []
+    for top in PRODUCT:
+        for path in (p for p in (root / top).rglob("*.py") if "__pycache__" not in p.parts):
+            rel = path.relative_to(root)
+            if rel.parts[:2] == HARNESS:
+                continue
+            package = ".".join(rel.parts[:-1])
+            names = [n for n in sorted(imported_modules(path, package))
+                     if n == "common.harness" or n.startswith("common.harness.")]
+            if names:
+                offenders.append(f"{rel}: {', '.join(names)}")
+    return offenders
+
+
+def test_no_gateway_module_imports_the_harness():
+    offenders = harness_imports(REPO)
+    assert not offenders, "the gateway imports common/harness/:\n" + "\n".join(offenders)
+
+
+def test_the_harness_gate_catches_an_offender(tmp_path):
+    probe_tree(tmp_path, {
+        "app/core/x.py": "from common.harness.procs import Proc\n",
+        "common/settings.py": "from .harness import gateway\n",
+        "common/families.py": "def f():\n    from . import harness\n",
+        "supervisor/ok.py": "from common import settings\n",
+        "common/harness/gateway.py": "from common.harness import procs\n"})
+    found = harness_imports(tmp_path)
+    assert sorted(line.split(": ")[0] for line in found) == [
+        "app/core/x.py", "common/families.py", "common/settings.py"], found
 
 
 def test_the_import_gate_reads_function_level_imports(tmp_path):

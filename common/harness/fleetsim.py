@@ -1,6 +1,6 @@
 """Many simulated robots in one process, on the fleet's Zenoh wire (issue 34's bench and tests).
 
-Run as ``python -m bench.fleetsim '<json spec>'``::
+Run as ``python -m common.harness.fleetsim '<json spec>'``::
 
     {"connect": "tcp/127.0.0.1:7447", "robots": 500, "answers": "/tmp/answers.json", "prefix": "sim",
      "latency_ms": [2, 20], "slow": 10, "slow_ms": [60, 120], "hung": 1, "seed": 1}
@@ -25,7 +25,7 @@ Commands on stdin, one per line (the tests and the bench steer it this way):
 
 Prints ``READY`` once every robot is declared and ``OK <command>`` after each command.
 
-For the bench and the tests alike (the fleet's processes, started with the tests' process harness):
+For the bench and the tests alike (the fleet's processes, with :mod:`common.harness.procs`):
 :class:`Router` (``sovd-zenoh-router`` on a free port) and :class:`SimFleet` (this program, steered).
 """
 
@@ -46,7 +46,8 @@ from typing import Any
 import orjson
 
 from ipc import fleet as wire
-from tests.support.procs import Proc, free_port
+
+from .procs import Proc, free_port
 
 BIN = Path(sys.executable).parent
 
@@ -221,14 +222,14 @@ class Router(Proc):
 
 
 class SimFleet(Proc):
-    """Simulated robots (``bench/fleetsim.py``) on ``router``; ``answers`` as :func:`bench.fleetsim.record` makes."""
+    """Simulated robots (``common/harness/fleetsim.py``) on ``router``; ``answers`` as :func:`record` makes."""
 
     def __init__(self, router: Router, answers: dict, robots: int, **spec):
         self.answers_file = tempfile.NamedTemporaryFile("w", suffix=".json", delete=False)  # noqa: SIM115
         json.dump(answers, self.answers_file)
         self.answers_file.close()
         full = {"connect": router.endpoint, "robots": robots, "answers": self.answers_file.name, **spec}
-        super().__init__([sys.executable, "-m", "bench.fleetsim", json.dumps(full)], name="fleet simulator",
+        super().__init__([sys.executable, "-m", "common.harness.fleetsim", json.dumps(full)], name="fleet simulator",
                          stdin=subprocess.PIPE)
         self.wait_line(lambda line: line == "READY", 60)
 
