@@ -23,7 +23,7 @@ The HTTP workers hold no tree and no Zenoh session: every answer comes from the 
   through the fleet, under its own ids, forwarded as the entity routes are; with
   ``/fleet/<fleet_id>/ui/`` the dashboard shows that robot (its robot picker, ``app/ui/js/fleet.js``).
 
-Every route that shows what the robots hold asks for a valid identity first (``app/routes/auth.py``):
+Every route that shows what the robots hold asks for a valid identity first (``app/core/auth.py``):
 the fleet gateway's tree and events are the robots' data, and each robot checks the forwarded
 identity again itself.
 """
@@ -239,7 +239,7 @@ robot_bp = Blueprint("fleet_robot", __name__, url_prefix="/fleet/<fleet_id>")
 
 @robot_bp.after_request
 def _ui_headers(response):
-    """The dashboard's security headers (``app/routes/ui.py``) on its files here too."""
+    """The dashboard's security headers (``app/core/ui.py``) on its files here too."""
     return ui._security_headers(response) if "/ui" in request.path else response
 
 
