@@ -45,12 +45,13 @@ EXTENSION = "sovd_families"   # app.extensions: the families create_app plugged 
 class Health:
     """A family's section of ``/health``: ``build(stats, cfg)`` from the ROS worker's last ``stats``
     answer (None before its first), never waiting on anything; ``schema``: its part of the
-    ``HealthStatus`` schema (None: made from the counters of ``ipc/counters.py`` ``section``)."""
+    ``HealthStatus`` schema (``openapi.build.counters_schema(section, ...)`` for a section of
+    ``ipc/counters.py``; None: not described there), ``required`` puts its key in that schema's
+    ``required``."""
 
     key: str
     build: Callable[[dict[str, Any] | None, Any], dict[str, Any]]
     schema: dict[str, Any] | None = None
-    section: str = ""
     required: bool = False
 
 
