@@ -61,11 +61,11 @@ class FaultHub(Hub):
     def __init__(self, runtime_dir: str, replay: Callable[[int], list[dict[str, Any]]],
                  stopping: Callable[[], bool] = lambda: False, send_timeout: float = 30.0,
                  endpoint: str = "", name: str = ""):
+        self._endpoint = endpoint  # another channel than the ROS worker's (the fleet link's)
+        self.NAME = name or self.NAME
         super().__init__(runtime_dir, send_timeout, stopping)
         self.replay = replay      # fault_events: the events after an id (IpcError)
         self._caught_up = 0       # the reconnects whose missed events were fetched
-        self._endpoint = endpoint  # another channel than the ROS worker's (the fleet link's)
-        self.NAME = name or self.NAME
 
     def endpoint(self) -> str:
         return self._endpoint or super().endpoint()
