@@ -72,6 +72,8 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
     cors.init_app(app)
     errors.init_app(app)
     rosclient.init_app(app)
+    families = family.discover()
+    family.offer(app, families)   # what the families offer every mode (core/resources.py's Relayed)
     # the fleet over Zenoh (issue 34, app/fleet/): a mode of the gateway, not a family
     from . import fleet
 
@@ -79,7 +81,7 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
         return app
     app.register_blueprint(root.bp)
     app.register_blueprint(discovery.bp)
-    family.plug(app, family.discover())   # the resource families, each by its FAMILY.init_app
+    family.plug(app, families)   # the resource families, each by its FAMILY.init_app
     app.register_blueprint(unimplemented.bp)  # medkit's routes not served here: 501
     app.register_blueprint(ui.bp)  # the dashboard at /ui/ (app/ui/)
     if cfg.debug_commands:  # test and bench routes; never in production

@@ -1,4 +1,4 @@
-"""The events channel: cyclic-subscription frames from the ROS worker to the HTTP workers.
+"""The events channel: what the ROS worker streams to the HTTP workers (cyclic subscriptions, faults, triggers).
 
 Transport: a ZeroMQ XPUB socket that the ROS worker binds on
 ``ipc://<runtime_dir>/rosworker-events.sock`` (0600, like the others), and one

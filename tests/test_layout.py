@@ -117,12 +117,10 @@ def test_each_package_imports_only_the_packages_below_it():
 # FAMILY (app/core/family.py, rosworker/core/family.py).  It imports no other family (it reaches their
 # resources through the registries of core/), and what is shared (core/ and the like, and the process's
 # top modules: wsgi.py, main.py) imports no family: it finds them (discover()) and knows none by name.
-# app/auth/ and app/audit/ are shared: every request passes them (create_app installs them by name).
-SHARED = {"app": {"core", "sse", "openapi", "ui", "auth", "audit"}, "rosworker": {"core", "ros"}}
-# A mode of a process, not a family: the top modules pick it by name, and it may import the families named
-# here.  The fleet gateway (app/fleet/, issue 34) serves the faults family's stream and status rules over
-# its Zenoh link (issue 30: to become a registration the faults family offers).
-MODES = {"app": {"fleet": {"faults"}}, "rosworker": {}}
+# app/auth/ and app/audit/ are shared: every request passes them (create_app installs them by name).  So is
+# a mode of a process, app/fleet/ (issue 34: create_app picks it by name): it serves the faults family's
+# stream and rules through what that family offers (app/core/resources.py's Relayed), importing none.
+SHARED = {"app": {"core", "sse", "openapi", "ui", "auth", "audit", "fleet"}, "rosworker": {"core", "ros"}}
 
 
 def imported_modules(path, package: str) -> set[str]:
@@ -157,8 +155,6 @@ def family_imports(root, top: str) -> list[str]:
             target = parts[1]
             if target in shared or target == own:
                 continue
-            if (own is None and target in MODES[top]) or target in MODES[top].get(own, ()):
-                continue
             who = "shared code" if own is None or own in shared else f"family {own}"
             offenders.append(f"{rel}: {who} imports family {target} ({name})")
     return offenders
@@ -173,13 +169,15 @@ def test_no_family_imports_another_and_the_shared_code_imports_none(top):
 def test_the_family_gate_catches_an_offender(tmp_path):
     for folder, text in (("core", ""), ("faults", ""), ("logs", "from ..faults import store\n"),
                          ("data", "def f():\n    from app.logs import book\n"),
-                         ("core/inner", "from ... import faults\n")):
+                         ("core/inner", "from ... import faults\n"),
+                         ("fleet", "from ..faults import hub as faultstream\n")):
         (tmp_path / "app" / folder).mkdir(parents=True, exist_ok=True)
         (tmp_path / "app" / folder / "__init__.py").write_text(text)
     (tmp_path / "app" / "wsgi.py").write_text("from .data import routes\nfrom .core import family\n")
     found = family_imports(tmp_path, "app")
     assert sorted({line.split(": ")[0] for line in found}) == [
-        "app/core/inner/__init__.py", "app/data/__init__.py", "app/logs/__init__.py", "app/wsgi.py"], found
+        "app/core/inner/__init__.py", "app/data/__init__.py", "app/fleet/__init__.py", "app/logs/__init__.py",
+        "app/wsgi.py"], found
 
 
 # No import cycles among the gateway's modules: what a module imports when it is loaded (function-level

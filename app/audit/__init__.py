@@ -1,5 +1,5 @@
 """The audit trail: who tried to change what, and what came of it (``trail.py``; the store is
-``app/accessdb.py``).
+``app/core/accessdb.py``).
 
 :func:`init_app` records every write (``POST``, ``PUT``, ``DELETE``, ``PATCH``) that matched a
 route, once its answer is made (an ``after_request`` hook: refusals by the role check, a lock or a

@@ -201,7 +201,7 @@ _decisions: dict[tuple[str, str, str], bool] = {}
 def _allowed(req, role: str) -> bool:
     """The role table's answer for this request.  For a matched route it depends only on the role, the
     method and the route's role path (its collection, every other variable one segment, bulk data's
-    at most three: ``app/target.py``), so it is remembered by those (a bounded set); an unmatched
+    at most three: ``app/core/target.py``), so it is remembered by those (a bounded set); an unmatched
     path is matched each time."""
     method = "GET" if req.method == "HEAD" else req.method
     role_path = targets.of(req).role_path

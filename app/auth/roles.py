@@ -3,7 +3,7 @@
 The table is medkit's (``src/ros2_medkit_gateway/src/core/auth/auth_config.cpp``,
 ``AuthConfig::get_role_permissions``), entry for entry: ``METHOD:/path`` with ``*`` for one path
 segment and ``**`` for any number.  A role may send a request when one of its entries matches the
-method and the request's path (``app/target.py`` makes one segment of a data id or an operation
+method and the request's path (``app/core/target.py`` makes one segment of a data id or an operation
 id that holds slashes).  ``HEAD`` is checked as ``GET``.  What the table does not list is refused
 to every role but admin, as in medkit: triggers (read and write), the per-entity ``docs``, the
 audit trail.  medkit's documentation says otherwise in two places; this table, like medkit's

@@ -11,11 +11,15 @@ A family (the same name as in the ROS worker: ``app/faults/`` beside
         health=Health("x-medkit-logs", counters_section("logs")),   # its /health section
         capabilities=lambda cfg: {"logs": True},  # its entries of GET /api/v1/'s capabilities
         setup=setup,                              # anything else: a hub, a registration (resources.py)
+        offer=None,                               # what every mode of the app may use (resources.py)
     )
 
 ``create_app`` (``app/wsgi.py``) finds the families (:func:`discover`: every
 package of ``app/`` that holds a ``FAMILY``, in name order) and calls
-``FAMILY.init_app(app)`` for each: Home Assistant's ``async_setup_entry``.  The
+``FAMILY.init_app(app)`` for each: Home Assistant's ``async_setup_entry``.
+Before that, whatever the mode, :func:`offer` runs each family's ``offer(app)``:
+registrations a mode that plugs no family uses (the fleet gateway serves the
+robots' faults with the faults family's rules, ``resources.Relayed``).  The
 root routes (``core/root.py``: ``/health``, the capabilities), the OpenAPI
 document (``app/openapi/``) and the metrics (``core/metrics.py``) loop over the
 families and know none by name.  A family imports no other family: it reaches
@@ -41,12 +45,13 @@ EXTENSION = "sovd_families"   # app.extensions: the families create_app plugged 
 class Health:
     """A family's section of ``/health``: ``build(stats, cfg)`` from the ROS worker's last ``stats``
     answer (None before its first), never waiting on anything; ``schema``: its part of the
-    ``HealthStatus`` schema (None: made from the counters of ``ipc/counters.py`` ``section``)."""
+    ``HealthStatus`` schema (``openapi.build.counters_schema(section, ...)`` for a section of
+    ``ipc/counters.py``; None: not described there), ``required`` puts its key in that schema's
+    ``required``."""
 
     key: str
     build: Callable[[dict[str, Any] | None, Any], dict[str, Any]]
     schema: dict[str, Any] | None = None
-    section: str = ""
     required: bool = False
 
 
@@ -72,6 +77,7 @@ class Family:
     capabilities: Callable[[Any], dict[str, bool]] = field(default=lambda cfg: {})
     metrics: Callable[[dict[str, Any]], Iterator[Any]] | None = None
     setup: Callable[[Flask], None] | None = None
+    offer: Callable[[Flask], None] | None = None
 
     def init_app(self, app: Flask) -> None:
         """Plug the family into ``app``: its routes, and what its ``setup`` does (hubs, registrations)."""
@@ -84,6 +90,13 @@ class Family:
 def discover(package: str = "app") -> tuple[Family, ...]:
     """Every family of ``package``, in name order (``common/families.py``)."""
     return families.discover(package, Family, NOT_FAMILIES)
+
+
+def offer(app: Flask, families: tuple[Family, ...]) -> None:
+    """What ``families`` offer every mode of ``app`` (``create_app``, before it picks the mode)."""
+    for family in families:
+        if family.offer is not None:
+            family.offer(app)
 
 
 def plug(app: Flask, families: tuple[Family, ...]) -> None:

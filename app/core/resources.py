@@ -16,7 +16,11 @@ registered it, and the subscriptions and triggers families know none of them:
 - :class:`Observable` (``observable(app, ...)``): a collection a trigger may
   observe (``data``, ``faults``, ``logs``): how its URI becomes the trigger's
   ``target`` and bytes mode on the ROS worker (whose notifier the family
-  provides the collection to).
+  provides the collection to);
+- :class:`Relayed` (``relayed(app, ...)`` in a family's ``offer``): a collection
+  a gateway that relays other gateways (the fleet gateway, ``app/fleet/``: the
+  robots' answers through its link) serves with the family's rules: its query
+  checks and its event stream, read from another channel.
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ _RESOURCE = re.compile(r"^/api/v1/([^/?#]+)/([^/?#]+)/([^/?#]+)(/.*)?$")
 UNKNOWN_CLIENT = "unknown"
 STREAMABLE = "sovd_streamable"
 OBSERVABLE = "sovd_observable"
+RELAYED = "sovd_relayed"
 
 
 def bad(message: str, parameter: str, value: Any, **extra: Any) -> ApiError:
@@ -140,6 +145,22 @@ class Observable:
     source: str = field(default="")
 
 
+@dataclass(frozen=True)
+class Relayed:
+    """A collection a relaying gateway serves with the family's rules (see the module's docstring).
+
+    ``check(params)``: the request's query checked as the family checks it (its 400, whose parameters
+    include ``params``: the entity asked); ``stream(app, name, client, command, endpoint, label)``:
+    registers the hub ``name`` of the collection's event stream, read from the channel at
+    ``endpoint(runtime_dir)``, missed events replayed by ``command`` of ``app.extensions[client]``;
+    ``response(name, max_streams)``: the answer to a GET of that hub's stream."""
+
+    collection: str
+    check: Callable[[dict[str, Any] | None], Any]
+    stream: Callable[..., None]
+    response: Callable[[str, int], Any]
+
+
 RANGES = ("EnterRange", "LeaveRange")
 
 
@@ -165,6 +186,15 @@ def streamable(app: Flask, item: Streamable) -> None:
 def observable(app: Flask, item: Observable) -> None:
     """A family's setup: triggers may observe ``item.collection``."""
     app.extensions.setdefault(OBSERVABLE, {})[item.collection] = item
+
+
+def relayed(app: Flask, item: Relayed) -> None:
+    """A family's offer: a relaying gateway may serve ``item.collection`` with the family's rules."""
+    app.extensions.setdefault(RELAYED, {})[item.collection] = item
+
+
+def relays(app: Flask | None = None) -> dict[str, Relayed]:
+    return (app or current_app).extensions.get(RELAYED, {})
 
 
 def streamables(app: Flask | None = None) -> dict[str, Streamable]:

@@ -13,6 +13,7 @@ from typing import Any
 
 from ..core.family import Family, Health
 from ..core.metrics import number
+from ..core.resources import Relayed, relayed
 from . import hub, resources, routes, spec
 
 HEALTH_KEYS = ("active", "confirmed", "store_size", "max_faults", "refused", "active_by_severity",
@@ -60,6 +61,11 @@ def setup(app: Any) -> None:
     resources.setup(app)
 
 
+def offer(app: Any) -> None:
+    """The fleet gateway serves the robots' faults with these rules (``app/core/resources.py``)."""
+    relayed(app, Relayed("faults", routes.status_filter, hub.register, hub.response))
+
+
 FAMILY = Family(
     name="faults",
     blueprints=(routes.bp,),
@@ -69,4 +75,5 @@ FAMILY = Family(
                               "fault_clear": bool(cfg.allow_fault_clear)},  # DELETE …/faults (the dashboard's Clear)
     metrics=metrics,
     setup=setup,
+    offer=offer,
 )

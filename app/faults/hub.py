@@ -59,10 +59,16 @@ class FaultHub(Hub):
     NAME = "fault events"
 
     def __init__(self, runtime_dir: str, replay: Callable[[int], list[dict[str, Any]]],
-                 stopping: Callable[[], bool] = lambda: False, send_timeout: float = 30.0):
+                 stopping: Callable[[], bool] = lambda: False, send_timeout: float = 30.0,
+                 endpoint: str = "", name: str = ""):
+        self._endpoint = endpoint  # another channel than the ROS worker's (the fleet link's)
+        self.NAME = name or self.NAME
         super().__init__(runtime_dir, send_timeout, stopping)
         self.replay = replay      # fault_events: the events after an id (IpcError)
         self._caught_up = 0       # the reconnects whose missed events were fetched
+
+    def endpoint(self) -> str:
+        return self._endpoint or super().endpoint()
 
     def stream(self, last_id: int, sock: Any = None, framed: bool = False) -> Stream:
         stream = Stream(self, STREAM_BUFFER, sock, framed)
@@ -121,25 +127,37 @@ class FaultHub(Hub):
                     stream.push(frame, seq=event["id"])
 
 
-# ---- this app's hub ---------------------------------------------------------------------------------------
-def setup(app: Flask) -> None:
+# ---- the hubs ---------------------------------------------------------------------------------------------
+def register(app: Flask, name: str, client: str = rosclient.EXTENSION, command: str = "fault_events",
+             endpoint: Callable[[str], str] | None = None, label: str = "") -> None:
+    """Register the hub ``name``: the fault events of the channel at ``endpoint(runtime_dir)`` (the ROS
+    worker's by default), the missed ones replayed by ``command`` of the client ``app.extensions[client]``.
+
+    This app's (``setup``), and the fleet gateway's: the robots' events on its link's channel
+    (``core/resources.py``'s :class:`~app.core.resources.Relayed` of faults, ``app/fleet/``)."""
     cfg = app.config["SOVD"]
-    ros = app.extensions[rosclient.EXTENSION]
 
     def make(_app: Flask) -> FaultHub:
+        source = _app.extensions[client]
+
         def replay(after: int) -> list[dict[str, Any]]:
-            return ros.call("fault_events", {"after": after}, REPLAY_TIMEOUT).get("events") or []
+            return source.call(command, {"after": after}, REPLAY_TIMEOUT).get("events") or []
 
-        return FaultHub(cfg.runtime_dir, replay, sse.worker_stopping, cfg.stream_send_timeout)
+        return FaultHub(cfg.runtime_dir, replay, sse.worker_stopping, cfg.stream_send_timeout,
+                        endpoint(cfg.runtime_dir) if endpoint else "", label)
 
-    sse.register(app, NAME, make)
+    sse.register(app, name, make)
+
+
+def setup(app: Flask) -> None:
+    register(app, NAME)
 
 
 def response(name: str, max_streams: int):
     """The answer to ``GET .../faults/stream`` from the hub registered as ``name`` (a :class:`FaultHub`):
     503 past ``max_streams`` open streams of this process, else the stream, after a ``Last-Event-ID``.
 
-    Also the fleet gateway's (``app/fleet/routes.py``), with its own hub (its link's events and replay)."""
+    Also the fleet gateway's (``app/fleet/``, through :class:`~app.core.resources.Relayed`), with its own hub."""
     if len(sse.hub_of(name).streams) >= max_streams:
         raise ApiError(503, "service-unavailable", "Maximum number of SSE clients reached. Please try again later.",
                        {"max_fault_streams": max_streams}, headers={"Retry-After": "5"})

@@ -57,7 +57,7 @@ PRIMARY_FIELDS = {
 
 
 # ---- helpers ----------------------------------------------------------------------------------------
-def _statuses(extra: dict[str, Any] | None = None) -> tuple[str, ...]:
+def status_filter(extra: dict[str, Any] | None = None) -> tuple[str, ...]:
     if "status" not in request.args:
         return DEFAULT_STATUSES
     value = request.args.get("status", "")
@@ -172,7 +172,7 @@ def _no_content():
 # ---- the gateway's faults -------------------------------------------------------------------------------
 @bp.get("/faults")
 def list_all():
-    items = _list(_statuses())
+    items = _list(status_filter())
     return json_response({"items": items, "x-medkit": {"count": len(items), "muted_count": 0,
                                                          "cluster_count": 0}})
 
@@ -180,7 +180,7 @@ def list_all():
 @bp.delete("/faults")
 def clear_all_global():
     _authorize_clear()
-    statuses = _statuses()
+    statuses = status_filter()
     codes = [f["fault_code"] for f in _list(statuses)]
     if codes:
         _call("fault_clear", {"codes": codes})
@@ -197,7 +197,7 @@ def stream():
 @bp.get(ENTITY + "/faults")
 def list_entity(collection: str, entity_id: str):
     entity = lookup(collection, entity_id)
-    statuses = _statuses({PARAM_NAMES[collection]: entity.id})
+    statuses = status_filter({PARAM_NAMES[collection]: entity.id})
     fqns = node_names(entity)
     items = [f for f in _list(statuses) if in_scope(f, fqns)]
     if collection == "apps":
@@ -217,7 +217,7 @@ def list_entity(collection: str, entity_id: str):
 def clear_entity(collection: str, entity_id: str):
     _authorize_clear()
     entity = lookup(collection, entity_id)
-    statuses = _statuses({PARAM_NAMES[collection]: entity.id})
+    statuses = status_filter({PARAM_NAMES[collection]: entity.id})
     fqns = node_names(entity)
     codes = [f["fault_code"] for f in _list(statuses) if in_scope(f, fqns)]
     if codes:

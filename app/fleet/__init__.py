@@ -1,4 +1,4 @@
-"""The fleet on the HTTP side (issue 34; ``docs/fleet.md``): one family, one contract, ``init_app(app)``.
+"""The fleet on the HTTP side (issue 34; ``docs/fleet.md``): a mode of the gateway, not a family; ``init_app(app)``.
 
 - Every gateway: a request its robot's fleet link makes (marked, ``ipc/fleet.py``) needs a valid
   identity, a read included (``robotside.py``).

@@ -37,6 +37,8 @@ import orjson
 
 from ipc.errors import IpcError
 
+from .registry import Registry
+
 MAX_SCOPE_NODES = 10000
 SCOPE_MAX = 256 * 1024  # characters of a scope target (the entity's node names, as JSON)
 
@@ -50,37 +52,28 @@ class Observer(Protocol):
     def failed(self, stamp: int, message: str) -> None: ...
 
 
-class ChangeNotifier:
+class ChangeNotifier(Registry):
     def __init__(self) -> None:
-        self._observables: dict[str, Any] = {}
+        super().__init__(lambda names: "source: expected one of " + ", ".join(names))
 
     def provide(self, collection: str, observable: Any) -> None:
         """A family's start: changes of ``collection`` can be observed through ``observable``."""
-        if collection in self._observables:
-            raise ValueError(f"{collection!r} is provided already")
-        self._observables[collection] = observable
+        self.add(collection, observable, f"{collection!r} is provided already")
 
     @property
     def collections(self) -> tuple[str, ...]:
-        return tuple(self._observables)
-
-    def get(self, collection: str) -> Any:
-        """The observable of ``collection`` (``bad-request`` when no family provides it)."""
-        observable = self._observables.get(collection)
-        if observable is None:
-            raise IpcError("bad-request", "source: expected one of " + ", ".join(self._observables))
-        return observable
+        return self.names
 
     def observe(self, collection: str, observer: Observer) -> None:
         self.get(collection).attach(observer)
 
     def forget(self, collection: str, observer: Observer) -> None:
-        observable = self._observables.get(collection)
+        observable = self._items.get(collection)
         if observable is not None:
             observable.detach(observer)
 
     def close(self) -> None:
-        for observable in self._observables.values():
+        for observable in self._items.values():
             observable.close()
 
 

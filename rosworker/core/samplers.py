@@ -36,9 +36,9 @@ from collections.abc import Callable
 from typing import Any, Protocol
 
 from ipc import events
-from ipc.errors import IpcError
 
 from .executor import Timer
+from .registry import Registry
 
 
 class Sampler(Protocol):
@@ -49,34 +49,25 @@ class Sampler(Protocol):
     def unwatch(self, sub: Any) -> None: ...
 
 
-class SamplerRegistry:
+class SamplerRegistry(Registry):
     def __init__(self) -> None:
-        self._samplers: dict[str, Any] = {}
+        super().__init__(lambda kinds: "kind: expected " + ", ".join(f"'{k}'" for k in kinds))
 
     def register(self, kind: str, sampler: Sampler) -> None:
         """A family's start: subscriptions of ``kind`` are streamed by ``sampler``."""
-        if kind in self._samplers:
-            raise ValueError(f"a sampler of {kind!r} is registered already")
-        self._samplers[kind] = sampler
+        self.add(kind, sampler, f"a sampler of {kind!r} is registered already")
 
     @property
     def kinds(self) -> tuple[str, ...]:
-        return tuple(self._samplers)
-
-    def get(self, kind: str) -> Any:
-        """The sampler of ``kind`` (``bad-request`` when no family streams it)."""
-        sampler = self._samplers.get(kind)
-        if sampler is None:
-            raise IpcError("bad-request", "kind: expected " + ", ".join(f"'{k}'" for k in self._samplers))
-        return sampler
+        return self.names
 
     def read(self, kind: str, resource: str, mode: str = "array") -> dict[str, Any] | None:
         """What a GET of ``resource`` would answer now (None: no value yet, or nobody samples ``kind``)."""
-        sampler = self._samplers.get(kind)
+        sampler = self._items.get(kind)
         return sampler.read(resource, mode) if sampler is not None else None
 
     def warm(self, kind: str, resource: str) -> None:
-        sampler = self._samplers.get(kind)
+        sampler = self._items.get(kind)
         if sampler is not None:
             sampler.warm(resource)
 

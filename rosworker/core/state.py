@@ -30,7 +30,7 @@ import os
 from collections.abc import Callable
 from typing import Any
 
-from common.process import write_atomic
+from common.process import remove, write_atomic
 
 from .writer import LatestWriter
 
@@ -104,12 +104,7 @@ class RestartState:
     def discard(self) -> None:
         """Remove the previous run's state (the first boot of a gateway: nothing died)."""
         for path in (self.path, self.path + ".tmp"):
-            try:
-                os.unlink(path)
-            except FileNotFoundError:
-                pass
-            except OSError as exc:
-                log.warning("could not remove the previous run's state %s: %s", path, exc)
+            remove(path, log, "could not remove the previous run's state")
 
     def load(self) -> None:
         """Read what the previous worker saved (nothing when there is none, or it is damaged)."""

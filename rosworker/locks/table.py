@@ -33,7 +33,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 from common.generations import Generations
-from common.process import write_atomic
+from common.process import remove, write_atomic
 from ipc.errors import IpcError
 
 log = logging.getLogger("sovd.rosworker.locks")
@@ -214,12 +214,7 @@ class LockTable:
             log.error("locks: cannot write %s (%s): a restarted ROS worker would start without them", self.path, exc)
 
     def _discard(self) -> None:
-        try:
-            os.unlink(self.path)
-        except FileNotFoundError:
-            pass
-        except OSError as exc:
-            log.warning("locks: cannot remove %s: %s", self.path, exc)
+        remove(self.path, log, "locks: cannot remove")
 
     def _load(self) -> None:
         try:

@@ -45,6 +45,7 @@ from ipc.errors import IpcError
 
 from ..core.events import EventsChannel
 from ..core.executor import RosExecutor, Timer
+from ..core.perclient import PerClient
 from ..core.samplers import SamplerRegistry
 from ..core.stats import Stats
 from ..core.writer import once_written
@@ -145,7 +146,7 @@ class StreamRegistry:
         self.subs: dict[str, Subscription] = {}
         self._records: dict[str, bytes] = {}  # id -> Subscription.record(), made when it changes
         self.version = 0                      # bumped at each change of the registry
-        self.per_client: dict[str, int] = {}
+        self.per_client = PerClient()
         self._expiry: dict[str, Timer] = {}
         # save(): after every change of the registry, hands the records to the restart state's
         # writer; save(then) also runs ``then`` once they are written (see when_saved).
@@ -170,7 +171,7 @@ class StreamRegistry:
             if sub.kind not in self.samplers.kinds:  # a kind no family streams (any more)
                 continue
             if sub.deadline > time.monotonic() and sub.interval in events.INTERVALS \
-                    and len(self.subs) < self.max_subscriptions and self._held_by(sub.client) < self.max_per_client:
+                    and len(self.subs) < self.max_subscriptions and self.per_client.held(sub.client) < self.max_per_client:
                 self._add(sub)
         if self.subs:
             log.info("restored %d cyclic subscriptions from before the restart", len(self.subs))
@@ -195,7 +196,7 @@ class StreamRegistry:
                            f"The gateway already holds {self.max_subscriptions} cyclic subscriptions "
                            "(max_subscriptions); delete one or retry later",
                            {"max_subscriptions": self.max_subscriptions})
-        if client and self._held_by(client) >= self.max_per_client:
+        if self.per_client.held(client) >= self.max_per_client:
             raise IpcError("subscriptions-full",
                            f"This client ({client}) already holds {self.max_per_client} cyclic subscriptions "
                            "(max_subscriptions_per_client); delete one or retry later",
@@ -248,15 +249,11 @@ class StreamRegistry:
             self._remove(sub, "expired")
 
     # ---- registry -------------------------------------------------------------------------
-    def _held_by(self, client: str) -> int:
-        return self.per_client.get(client, 0) if client else 0
-
     def _add(self, sub: Subscription) -> None:
         self.subs[sub.id] = sub
         self._records[sub.id] = sub.record()
         self.version += 1
-        if sub.client:
-            self.per_client[sub.client] = self.per_client.get(sub.client, 0) + 1
+        self.per_client.take(sub.client)
         self._watch(sub)
         self._arm_expiry(sub)
         self.stats.active_subscriptions = len(self.subs)
@@ -266,12 +263,7 @@ class StreamRegistry:
             return
         self._records.pop(sub.id, None)
         self.version += 1
-        if sub.client:
-            held = self.per_client.get(sub.client, 0) - 1
-            if held > 0:
-                self.per_client[sub.client] = held
-            else:
-                self.per_client.pop(sub.client, None)
+        self.per_client.give(sub.client)
         self._unwatch(sub)
         timer = self._expiry.pop(sub.id, None)
         if timer is not None:

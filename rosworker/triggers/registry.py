@@ -47,6 +47,7 @@ from ipc.errors import IpcError
 from ..core import args
 from ..core.executor import RosExecutor, Task, Timer
 from ..core.notifier import ChangeNotifier
+from ..core.perclient import PerClient
 from ..core.stats import Stats
 from ..core.writer import once_written
 from .conditions import check_condition
@@ -113,7 +114,7 @@ class TriggerRegistry:
         self.bytes = 0                          # of the records of the triggers held
         self.triggers: dict[str, Trigger] = {}
         self._timers: dict[str, Timer] = {}
-        self.per_client: dict[str, int] = {}
+        self.per_client = PerClient()
         self.store = store
         self._observers: dict[str, TriggerObserver] = {}   # trigger id -> attached to its collection
         stats.max_triggers = max_triggers
@@ -197,7 +198,7 @@ class TriggerRegistry:
         if len(self.triggers) >= self.max_triggers:
             raise IpcError("triggers-full", f"The gateway already holds {self.max_triggers} triggers "
                            "(max_triggers); delete one or retry later", {"max_triggers": self.max_triggers})
-        if client and self.per_client.get(client, 0) >= self.max_per_client:
+        if self.per_client.held(client) >= self.max_per_client:
             raise IpcError("triggers-full", f"This client ({client}) already holds {self.max_per_client} "
                            "triggers (max_triggers_per_client); delete one or retry later",
                            {"max_triggers_per_client": self.max_per_client})
@@ -280,8 +281,7 @@ class TriggerRegistry:
         # worker restart does not take the restored trigger's events for ones it already sent.
         trigger.seq = trigger.opened_seq = max(trigger.seq, time.time_ns())
         self.triggers[trigger.id] = trigger
-        if trigger.client:
-            self.per_client[trigger.client] = self.per_client.get(trigger.client, 0) + 1
+        self.per_client.take(trigger.client)
         observer = self._observers[trigger.id] = TriggerObserver(trigger, self.fire)
         self.notifier.observe(trigger.source, observer)
         self._arm(trigger)
@@ -327,12 +327,7 @@ class TriggerRegistry:
             return
         self.bytes -= trigger.size
         trigger.size = 0
-        if trigger.client:
-            held = self.per_client.get(trigger.client, 0) - 1
-            if held > 0:
-                self.per_client[trigger.client] = held
-            else:
-                self.per_client.pop(trigger.client, None)
+        self.per_client.give(trigger.client)
         self._detach(trigger)
         timer = self._timers.pop(trigger.id, None)
         if timer is not None:
