@@ -4,7 +4,7 @@ A 2 Hz topic streamed at ``slow`` (500 ms): its ticks follow the messages'
 arrivals, so a frame carries a message a few milliseconds after the gateway
 received it (on the interval's fixed grid it could be anywhere up to 500 ms),
 while the cadence stays one frame per interval with the latest value.  The
-unit tests (tests/rosworker/test_rosworker_stream_phase.py) pin the phase to the
+unit tests (tests/rosworker/data/test_rosworker_stream_phase.py) pin the phase to the
 millisecond; this one shows it on the real thing with a generous bound.  It is a
 timing claim (a 2 Hz publisher's jitter on a loaded machine moves a message past
 its tick), so it runs in ``make reliability``, alone, not in ``make test``.
