@@ -36,12 +36,11 @@ def dirs(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def gw(listener, dirs):
-    gateway = Gateway("--auth-enabled", "--allow-publish", "--workers", "2", "--access-log", "--log-level", "debug",
-                      "--state-dir", dirs, env={**ENV, "SOVD_API_TOKEN": LEGACY})
-    poll_until(lambda: APP in {a["id"] for a in gateway.get("/apps").json()["items"]}, 30, message="listener listed")
-    yield gateway
-    gateway.stop()
+def gw(listener, dirs, gateway):
+    gw = gateway("--auth-enabled", "--allow-publish", "--workers", "2", "--access-log", "--log-level", "debug",
+                 "--state-dir", dirs, env={**ENV, "SOVD_API_TOKEN": LEGACY})
+    poll_until(lambda: APP in {a["id"] for a in gw.get("/apps").json()["items"]}, 30, message="listener listed")
+    return gw
 
 
 def records(gw, admin: dict, **query) -> dict:

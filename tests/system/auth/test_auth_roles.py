@@ -46,15 +46,14 @@ def robot():
 
 
 @pytest.fixture(scope="module")
-def gw(robot):
-    gateway = Gateway("--auth-enabled", "--allow-publish", "--allow-operations", "--allow-configurations",
-                      "--allow-fault-clear", "--allow-bulk-data", "--bulk-data-categories", "logs", "--workers", "2",
-                      env=ENV)
-    poll_until(lambda: {LISTENER, "auth_arm", "auth_tuner"} <= {a["id"] for a in gateway.get("/apps").json()["items"]},
+def gw(robot, gateway):
+    gw = gateway("--auth-enabled", "--allow-publish", "--allow-operations", "--allow-configurations",
+                 "--allow-fault-clear", "--allow-bulk-data", "--bulk-data-categories", "logs", "--workers", "2",
+                 env=ENV)
+    poll_until(lambda: {LISTENER, "auth_arm", "auth_tuner"} <= {a["id"] for a in gw.get("/apps").json()["items"]},
                30, message="the test nodes listed")
-    poll_until(lambda: gateway.get("/apps/auth_arm/operations").json()["items"], 20, message="the service")
-    yield gateway
-    gateway.stop()
+    poll_until(lambda: gw.get("/apps/auth_arm/operations").json()["items"], 20, message="the service")
+    return gw
 
 
 @pytest.fixture(scope="module")

@@ -58,11 +58,9 @@ def state_dir(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def gw(state_dir):
-    gateway = Gateway("--auth-enabled", "--allow-operations", "--workers", "2", "--debug-commands", "--state-dir", state_dir,
-                      "--token-expiry-seconds", "600", env={**ENV, "SOVD_API_TOKEN": "legacy-admin-token-0123456789"})
-    yield gateway
-    gateway.stop()
+def gw(state_dir, gateway):
+    return gateway("--auth-enabled", "--allow-operations", "--workers", "2", "--debug-commands", "--state-dir", state_dir,
+                   "--token-expiry-seconds", "600", env={**ENV, "SOVD_API_TOKEN": "legacy-admin-token-0123456789"})
 
 
 def test_a_good_token_is_accepted_and_forged_ones_are_not(gw):

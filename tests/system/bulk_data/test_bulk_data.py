@@ -50,15 +50,11 @@ def robot():
 
 
 @pytest.fixture(scope="module")
-def gw(robot):
-    from tests.support.gateway import Gateway
-
-    gateway = Gateway("--fault-rosbag-enabled", "--fault-rosbag-topics", f"{robot['temp']},{robot['cmd']}",
-                      "--fault-rosbag-duration-s", str(DURATION_S), "--fault-rosbag-duration-after-s", str(AFTER_S),
-                      "--allow-fault-clear", "--allow-bulk-data", "--bulk-data-categories", "calibration,firmware",
-                      "--bulk-data-max-upload-size", str(UPLOAD_CAP))
-    yield gateway
-    gateway.stop()
+def gw(robot, gateway):
+    return gateway("--fault-rosbag-enabled", "--fault-rosbag-topics", f"{robot['temp']},{robot['cmd']}",
+                   "--fault-rosbag-duration-s", str(DURATION_S), "--fault-rosbag-duration-after-s", str(AFTER_S),
+                   "--allow-fault-clear", "--allow-bulk-data", "--bulk-data-categories", "calibration,firmware",
+                   "--bulk-data-max-upload-size", str(UPLOAD_CAP))
 
 
 @pytest.fixture

@@ -73,14 +73,13 @@ def robot():
 
 
 @pytest.fixture(scope="module")
-def gw(robot):
-    gateway = Gateway("--allow-configurations", "--api-token", TOKEN, "--parameter-service-timeout", str(TIMEOUT),
-                      "--parameter-negative-cache-s", "30", "--log-level", "warning")
-    poll_until(lambda: all(gateway.get(f"/apps/{a}").status_code == 200
+def gw(robot, gateway):
+    gw = gateway("--allow-configurations", "--api-token", TOKEN, "--parameter-service-timeout", str(TIMEOUT),
+                 "--parameter-negative-cache-s", "30", "--log-level", "warning")
+    poll_until(lambda: all(gw.get(f"/apps/{a}").status_code == 200
                            for a in ("tuner", "helper", "autodecl", "stuck", "good", "nosvc")), 20,
                message="the parameter nodes as apps")
-    yield gateway
-    gateway.stop()
+    return gw
 
 
 def put(gw, path, body, headers=AUTH):

@@ -15,7 +15,6 @@ import sys
 import pytest
 import requests
 
-from tests.support.gateway import Gateway
 from tests.support.procs import Proc, poll_until
 
 TOKEN = "cfg-many-token-0123456789"
@@ -39,14 +38,13 @@ def fleet():
 
 
 @pytest.fixture(scope="module")
-def gw(fleet):
-    gateway = Gateway("--allow-configurations", "--api-token", TOKEN, "--parameter-service-timeout", "6",
-                      "--log-level", "warning")
+def gw(fleet, gateway):
+    gw = gateway("--allow-configurations", "--api-token", TOKEN, "--parameter-service-timeout", "6",
+                 "--log-level", "warning")
     apps = set(fleet)
-    poll_until(lambda: apps <= {a["id"] for a in gateway.get("/apps").json()["items"]}, 120, interval=0.5,
+    poll_until(lambda: apps <= {a["id"] for a in gw.get("/apps").json()["items"]}, 120, interval=0.5,
                message="the 200 nodes as apps")
-    yield gateway
-    gateway.stop()
+    return gw
 
 
 def test_a_component_with_200_nodes_lists_and_resets_all_of_them(gw, fleet):

@@ -100,10 +100,8 @@ def burst(port: int, path: str, total: int, connections: int = 8, batch: int = 1
 
 
 @pytest.fixture(scope="module")
-def gw():
-    gateway = Gateway("--access-log", "--debug-commands")
-    yield gateway
-    assert gateway.stop() == 0
+def gw(gateway):
+    return gateway("--access-log", "--debug-commands", exit_code=0)
 
 
 class LineCounts:

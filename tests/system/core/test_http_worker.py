@@ -32,12 +32,10 @@ BIG_HEADERS = b"".join(b"X-Big-%d: %s\r\n" % (i, b"a" * 8000) for i in range(9))
 
 
 @pytest.fixture(scope="module")
-def gw():
-    gateway = Gateway("--workers", "1", "--worker-connections", "64",
-                      "--header-timeout", str(HEADER_TIMEOUT), "--body-timeout", str(BODY_TIMEOUT),
-                      "--allow-publish", "--log-level", "warning")
-    yield gateway
-    gateway.stop()
+def gw(gateway):
+    return gateway("--workers", "1", "--worker-connections", "64",
+                   "--header-timeout", str(HEADER_TIMEOUT), "--body-timeout", str(BODY_TIMEOUT),
+                   "--allow-publish", "--log-level", "warning")
 
 
 @pytest.fixture(scope="module")

@@ -44,12 +44,11 @@ def robot():
 
 
 @pytest.fixture(scope="module")
-def gw(robot):
-    gateway = Gateway("--log-level", "warning")
-    poll_until(lambda: all(gateway.get(f"/apps/{a}").status_code == 200
+def gw(robot, gateway):
+    gw = gateway("--log-level", "warning")
+    poll_until(lambda: all(gw.get(f"/apps/{a}").status_code == 200
                            for a in ("lc_idle", "lc_running", "lc_stuck", "lc_plain")), 30, message="the apps")
-    yield gateway
-    gateway.stop()
+    return gw
 
 
 def status(gw: Gateway, path: str) -> str:

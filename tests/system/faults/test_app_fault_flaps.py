@@ -22,12 +22,10 @@ STALE_S = 2.5  # five times the slowest publisher's period: only a busy ROS thre
 
 
 @pytest.fixture(scope="module")
-def gw():
-    gateway = Gateway("--fault-confirm-count", "3", "--fault-confirm-s", "60", "--fault-heal-count", "2",
-                      "--fault-stale-s", str(STALE_S), "--allow-fault-clear", "--api-token", TOKEN,
-                      "--debug-commands")
-    yield gateway
-    gateway.stop()
+def gw(gateway):
+    return gateway("--fault-confirm-count", "3", "--fault-confirm-s", "60", "--fault-heal-count", "2",
+                   "--fault-stale-s", str(STALE_S), "--allow-fault-clear", "--api-token", TOKEN,
+                   "--debug-commands")
 
 
 def fault(gw: Gateway, code: str) -> dict | None:

@@ -24,12 +24,10 @@ AUTH = {"Authorization": f"Bearer {TOKEN}"}
 
 
 @pytest.fixture(scope="module")
-def gw():
-    gateway = Gateway("--fault-confirm-count", "3", "--fault-confirm-s", "60", "--fault-heal-count", "2",
-                      "--fault-stale-s", "4", "--allow-fault-clear", "--api-token", TOKEN,
-                      "--fault-snapshot-topics", "SNAP_*=/snap_temp", "--max-fault-streams", "2")
-    yield gateway
-    gateway.stop()
+def gw(gateway):
+    return gateway("--fault-confirm-count", "3", "--fault-confirm-s", "60", "--fault-heal-count", "2",
+                   "--fault-stale-s", "4", "--allow-fault-clear", "--api-token", TOKEN,
+                   "--fault-snapshot-topics", "SNAP_*=/snap_temp", "--max-fault-streams", "2")
 
 
 def unique(prefix: str) -> tuple[str, str]:

@@ -61,15 +61,12 @@ def robot():
 
 
 @pytest.fixture(scope="module")
-def gw(robot):
-    gateway = Gateway("--workers", "2", "--rate-limit", f"{RATE}/{BURST}", "--cors-origins", UI,
-                      "--access-log", "--debug-commands", "--sample-timeout", str(SAMPLE_TIMEOUT))
-    try:
-        poll_until(lambda: gateway.get(f"/apps/{APP}/data{TOPIC}", headers=client(1))
-                   .json()["x-medkit"]["status"] == "data", 30, interval=0.3, message="the robot's data")
-        yield gateway
-    finally:
-        assert gateway.stop() == 0
+def gw(robot, gateway):
+    gw = gateway("--workers", "2", "--rate-limit", f"{RATE}/{BURST}", "--cors-origins", UI,
+                 "--access-log", "--debug-commands", "--sample-timeout", str(SAMPLE_TIMEOUT), exit_code=0)
+    poll_until(lambda: gw.get(f"/apps/{APP}/data{TOPIC}", headers=client(1))
+               .json()["x-medkit"]["status"] == "data", 30, interval=0.3, message="the robot's data")
+    return gw
 
 
 def scrape(gw: Gateway, timeout: float = 10) -> dict:

@@ -30,12 +30,11 @@ def listener():
 
 
 @pytest.fixture(scope="module")
-def gw(listener):
-    gateway = Gateway("--allow-publish", "--allow-bulk-data", "--bulk-data-categories", "logs", "--workers", "2",
-                      "--locking-cleanup-interval", "1")
-    poll_until(lambda: APP in {a["id"] for a in gateway.get("/apps").json()["items"]}, 30, message="listener listed")
-    yield gateway
-    gateway.stop()
+def gw(listener, gateway):
+    gw = gateway("--allow-publish", "--allow-bulk-data", "--bulk-data-categories", "logs", "--workers", "2",
+                 "--locking-cleanup-interval", "1")
+    poll_until(lambda: APP in {a["id"] for a in gw.get("/apps").json()["items"]}, 30, message="listener listed")
+    return gw
 
 
 def as_client(gw, who: str | None, write: tuple, **headers) -> requests.Response:

@@ -27,10 +27,8 @@ STORM_S = 4.0
 
 
 @pytest.fixture(scope="module")
-def gw():
-    gateway = Gateway("--log-buffer-size", str(BUFFER), "--log-max-bytes", str(MAX_BYTES), "--log-level", "warning")
-    yield gateway
-    gateway.stop()
+def gw(gateway):
+    return gateway("--log-buffer-size", str(BUFFER), "--log-max-bytes", str(MAX_BYTES), "--log-level", "warning")
 
 
 def _logs(gw: Gateway) -> dict:

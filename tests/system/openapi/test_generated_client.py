@@ -22,7 +22,6 @@ import pytest
 import requests
 
 from app.core.entities import host_component_id
-from tests.support.gateway import Gateway
 from tests.support.procs import poll_until, publisher
 
 BIN = Path(sys.executable).parent
@@ -32,14 +31,17 @@ PACKAGE = "sovd_generated_client"
 
 
 @pytest.fixture(scope="module")
-def gw():
+def robot():
     node = publisher("temp_sensor", "temperature", "sensor_msgs/msg/Temperature",
                      {"temperature": 93.5, "variance": 0.5, "header": {"frame_id": "engine"}},
                      namespace="/powertrain/engine")
-    gateway = Gateway()
-    yield gateway
-    gateway.stop()
+    yield node
     node.stop()
+
+
+@pytest.fixture(scope="module")
+def gw(robot, gateway):
+    return gateway()
 
 
 @pytest.fixture(scope="module")

@@ -48,13 +48,12 @@ def arm():
 
 
 @pytest.fixture(scope="module")
-def gw(arm):
-    gateway = Gateway("--allow-operations", "--api-token", TOKEN, "--service-call-timeout", str(CALL_TIMEOUT),
-                      "--workers", "2", "--debug-commands")
-    poll_until(lambda: gateway.get(ARM + "/operations").status_code == 200
-               and len(gateway.get(ARM + "/operations").json()["items"]) == 4, 20, message="arm operations")
-    yield gateway
-    gateway.stop()
+def gw(arm, gateway):
+    gw = gateway("--allow-operations", "--api-token", TOKEN, "--service-call-timeout", str(CALL_TIMEOUT),
+                 "--workers", "2", "--debug-commands")
+    poll_until(lambda: gw.get(ARM + "/operations").status_code == 200
+               and len(gw.get(ARM + "/operations").json()["items"]) == 4, 20, message="arm operations")
+    return gw
 
 
 def post(gw, path: str, body: dict, headers: dict | None = None, **kw) -> requests.Response:

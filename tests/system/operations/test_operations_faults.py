@@ -15,7 +15,6 @@ import requests
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tests.support.gateway import Gateway
 from tests.support.procs import poll_until
 from tests.system.operations.test_operations import OpsNode
 
@@ -43,14 +42,13 @@ def servers():
 
 
 @pytest.fixture(scope="module")
-def gw(servers):
-    gateway = Gateway("--allow-operations", "--api-token", TOKEN, "--service-call-timeout", str(CALL_TIMEOUT))
-    poll_until(lambda: len(gateway.get("/functions/dup/operations").json().get("items", [])) == 2
-               and len(gateway.get("/apps/hung/operations").json().get("items", [])) == 2
-               and len(gateway.get("/apps/c/operations").json().get("items", [])) == 2, 20,
+def gw(servers, gateway):
+    gw = gateway("--allow-operations", "--api-token", TOKEN, "--service-call-timeout", str(CALL_TIMEOUT))
+    poll_until(lambda: len(gw.get("/functions/dup/operations").json().get("items", [])) == 2
+               and len(gw.get("/apps/hung/operations").json().get("items", [])) == 2
+               and len(gw.get("/apps/c/operations").json().get("items", [])) == 2, 20,
                message="operations discovered")
-    yield gateway
-    gateway.stop()
+    return gw
 
 
 def post(gw, path: str, body, **kw) -> requests.Response:

@@ -16,25 +16,33 @@ import time
 import pytest
 import requests
 
-from tests.support.gateway import Gateway
 from tests.support.procs import RosNode, poll_until
 
 APP = "sender"
 TOPIC = "/sender/count"
+RATE = 20  # Hz
+GATEWAY = ("--workers", "1", "--log-level", "warning")
+
+
+# The two fixtures read the module that uses them (tests/reliability/test_stream_phase.py imports them):
+# its APP publishes a counter on TOPIC (std_msgs/msg/Float64) at RATE, and its gateway (GATEWAY's flags)
+# is ready once it serves that topic as data.
+@pytest.fixture(scope="module")
+def robot(request):
+    mod = request.module
+    node = RosNode({"node": mod.APP, "publish": [
+        {"topic": mod.TOPIC, "type": "std_msgs/msg/Float64", "rate": mod.RATE, "counter": "data"}]}, timeout=60)
+    yield node
+    node.stop()
 
 
 @pytest.fixture(scope="module")
-def gw():
-    node = RosNode({"node": APP, "publish": [
-        {"topic": TOPIC, "type": "std_msgs/msg/Float64", "rate": 20, "counter": "data"}]}, timeout=60)
-    gateway = Gateway("--workers", "1", "--log-level", "warning")
-    try:
-        poll_until(lambda: gateway.get(f"/apps/{APP}/data{TOPIC}").json()["x-medkit"]["status"] == "data", 30,
-                   message="the robot's data")
-        yield gateway
-    finally:
-        gateway.stop()
-        node.stop()
+def gw(request, robot, gateway):
+    mod = request.module
+    gw = gateway(*mod.GATEWAY)
+    poll_until(lambda: gw.get(f"/apps/{mod.APP}/data{mod.TOPIC}").json()["x-medkit"]["status"] == "data", 30,
+               message="the robot's data")
+    return gw
 
 
 def subscribe(gw, duration: int = 60) -> dict:

@@ -46,11 +46,18 @@ def robot_spec() -> dict:
     ]}
 
 
-def start_gateway(*args: str) -> Gateway:
-    gw = Gateway("--workers", "2", "--log-level", "warning", *args)
+FLAGS = ("--workers", "2", "--log-level", "warning")
+
+
+def sees_the_robot(gw: Gateway) -> Gateway:
     poll_until(lambda: gw.get(f"/apps/{APP}/data{TOPIC}").json()["x-medkit"]["status"] == "data", 30,
                message="the robot's data")
     return gw
+
+
+def start_gateway(*args: str) -> Gateway:
+    """A gateway of the test's own (stopped by the test)."""
+    return sees_the_robot(Gateway(*FLAGS, *args))
 
 
 @pytest.fixture(scope="module")
@@ -64,10 +71,8 @@ SEND_TIMEOUT = 3  # --stream-send-timeout of the module's gateway: stalled reade
 
 
 @pytest.fixture(scope="module")
-def gw(robot):
-    gateway = start_gateway("--stream-send-timeout", str(SEND_TIMEOUT))
-    yield gateway
-    gateway.stop()
+def gw(robot, gateway):
+    return sees_the_robot(gateway(*FLAGS, "--stream-send-timeout", str(SEND_TIMEOUT)))
 
 
 def subscribe(gw, interval: str = "normal", duration: int = 120, resource: str | None = None) -> dict:

@@ -15,7 +15,6 @@ import time
 import pytest
 import requests
 
-from tests.support.gateway import Gateway
 from tests.support.procs import Proc, poll_until
 
 TOKEN = "feeds-token-0123456789abcdef"
@@ -45,14 +44,13 @@ def nodes():
 
 
 @pytest.fixture(scope="module")
-def gw(nodes):
-    gateway = Gateway("--allow-operations", "--allow-configurations", "--api-token", TOKEN, "--workers", "2",
-                      "--log-level", "warning")
-    poll_until(lambda: gateway.get(ARM + "/operations").status_code == 200
-               and len(gateway.get(ARM + "/operations").json()["items"]) == 2
-               and gateway.get(TUNER).status_code == 200, 60, message="the action server and the parameter node")
-    yield gateway
-    gateway.stop()
+def gw(nodes, gateway):
+    gw = gateway("--allow-operations", "--allow-configurations", "--api-token", TOKEN, "--workers", "2",
+                 "--log-level", "warning")
+    poll_until(lambda: gw.get(ARM + "/operations").status_code == 200
+               and len(gw.get(ARM + "/operations").json()["items"]) == 2
+               and gw.get(TUNER).status_code == 200, 60, message="the action server and the parameter node")
+    return gw
 
 
 def subscribe(gw, entity: str, resource: str, interval: str = "fast", duration: int = 60) -> requests.Response:

@@ -31,11 +31,9 @@ AUTH = {"Authorization": f"Bearer {TOKEN}"}
 
 
 @pytest.fixture(scope="module")
-def gw():
-    gateway = Gateway("--workers", "2", "--log-level", "warning", "--api-token", TOKEN,
-                      "--fault-confirm-count", "3", "--fault-confirm-s", "60", "--fault-heal-count", "2")
-    yield gateway
-    gateway.stop()
+def gw(gateway):
+    return gateway("--workers", "2", "--log-level", "warning", "--api-token", TOKEN,
+                   "--fault-confirm-count", "3", "--fault-confirm-s", "60", "--fault-heal-count", "2")
 
 
 def tag() -> str:

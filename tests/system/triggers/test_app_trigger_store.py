@@ -32,11 +32,10 @@ def pub():
 
 
 @pytest.fixture(scope="module")
-def gw(pub):
-    gateway = Gateway("--workers", "1", "--log-level", "warning", "--max-trigger-bytes", str(CAP))
-    poll_until(lambda: gateway.get(f"/apps/{APP}").status_code == 200, 30, message="the app")
-    yield gateway
-    gateway.stop()
+def gw(pub, gateway):
+    gw = gateway("--workers", "1", "--log-level", "warning", "--max-trigger-bytes", str(CAP))
+    poll_until(lambda: gw.get(f"/apps/{APP}").status_code == 200, 30, message="the app")
+    return gw
 
 
 def post(gw: Gateway, target_value, **fields) -> requests.Response:

@@ -36,10 +36,8 @@ _names = itertools.count(1)
 
 
 @pytest.fixture(scope="module")
-def gw():
-    gateway = Gateway("--workers", "2", "--log-level", "warning", "--api-token", TOKEN)
-    yield gateway
-    gateway.stop()
+def gw(gateway):
+    return gateway("--workers", "2", "--log-level", "warning", "--api-token", TOKEN)
 
 
 class Topic:

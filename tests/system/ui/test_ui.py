@@ -75,15 +75,10 @@ def robot(browser):
 
 
 @pytest.fixture(scope="module")
-def gw(robot):
-    gateway = Gateway("--allow-publish", "--api-token", TOKEN)
-    try:
-        poll_until(lambda: demo_is_discovered(gateway), 60, interval=0.2, message="the demo robot's topics")
-    except BaseException:
-        gateway.stop()
-        raise
-    yield gateway
-    gateway.stop()
+def gw(robot, gateway):
+    gw = gateway("--allow-publish", "--api-token", TOKEN)
+    poll_until(lambda: demo_is_discovered(gw), 60, interval=0.2, message="the demo robot's topics")
+    return gw
 
 
 @pytest.fixture

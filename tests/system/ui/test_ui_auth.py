@@ -20,17 +20,25 @@ from tests.system.ui.test_ui import NUMBER, browser, expect, leaf, page, robot  
 TEMPERATURE = "/ui/#/apps/temp_sensor/data/powertrain/engine/temperature"
 
 
+# (the legacy api_token too: the test's own health checks use it when every read needs a token)
+GATEWAY_ENV = {**ENV, "SOVD_API_TOKEN": "ui-legacy-admin-token-0123"}
+
+
+def sees_the_robot(gateway: Gateway) -> Gateway:
+    poll_until(lambda: gateway.get("/apps/temp_sensor/configurations/publish_rate",
+                                   headers=admin_headers(gateway)).status_code == 200, 60, interval=0.2,
+               message="the demo robot")
+    return gateway
+
+
 def started(*args: str) -> Gateway:
-    # (the legacy api_token too: the test's own health checks use it when every read needs a token)
-    gateway = Gateway("--auth-enabled", *args, env={**ENV, "SOVD_API_TOKEN": "ui-legacy-admin-token-0123"})
+    """A gateway of the test's own (stopped by the test)."""
+    gateway = Gateway("--auth-enabled", *args, env=GATEWAY_ENV)
     try:
-        poll_until(lambda: gateway.get("/apps/temp_sensor/configurations/publish_rate",
-                                       headers=admin_headers(gateway)).status_code == 200, 60, interval=0.2,
-                   message="the demo robot")
+        return sees_the_robot(gateway)
     except BaseException:
         gateway.stop()
         raise
-    return gateway
 
 
 def admin_headers(gateway: Gateway) -> dict:
@@ -42,10 +50,8 @@ def admin_headers(gateway: Gateway) -> dict:
 
 
 @pytest.fixture(scope="module")
-def gw(robot):  # noqa: F811
-    gateway = started("--allow-publish", "--allow-configurations")
-    yield gateway
-    gateway.stop()
+def gw(robot, gateway):  # noqa: F811
+    return sees_the_robot(gateway("--auth-enabled", "--allow-publish", "--allow-configurations", env=GATEWAY_ENV))
 
 
 def sign_in(tab, role: str, secret: str | None = None) -> None:

@@ -7,7 +7,6 @@ import re
 
 import pytest
 
-from tests.support.gateway import Gateway
 from tests.support.procs import poll_until
 from tests.system.ui.test_ui import TOKEN, browser, expect, page, robot, sign_in  # noqa: F401 - fixtures
 
@@ -15,16 +14,11 @@ VIEWPORT = {"width": 1360, "height": 860}
 
 
 @pytest.fixture(scope="module")
-def gw(robot):  # noqa: F811 - the module's own gateway: operations allowed
-    gateway = Gateway("--allow-operations", "--api-token", TOKEN)
-    try:
-        poll_until(lambda: len(gateway.get("/apps/calibration/operations").json().get("items", [])) == 2, 60,
-                   interval=0.2, message="the demo arm's operations")
-    except BaseException:
-        gateway.stop()
-        raise
-    yield gateway
-    gateway.stop()
+def gw(robot, gateway):  # noqa: F811 - the module's own gateway: operations allowed
+    gw = gateway("--allow-operations", "--api-token", TOKEN)
+    poll_until(lambda: len(gw.get("/apps/calibration/operations").json().get("items", [])) == 2, 60,
+               interval=0.2, message="the demo arm's operations")
+    return gw
 
 
 def test_operations_panel_runs_a_service_and_an_action_and_cancels_it(gw, page):  # noqa: F811

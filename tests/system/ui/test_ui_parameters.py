@@ -14,16 +14,11 @@ BASE = "/apps/temp_sensor/configurations"
 
 
 @pytest.fixture(scope="module")
-def gw(robot):  # noqa: F811 - the module's own gateway: configuration writes allowed
-    gateway = Gateway("--allow-configurations", "--api-token", TOKEN)
-    try:
-        poll_until(lambda: gateway.get(BASE + "/publish_rate").status_code == 200, 60, interval=0.2,
-                   message="the demo engine's parameters")
-    except BaseException:
-        gateway.stop()
-        raise
-    yield gateway
-    gateway.stop()
+def gw(robot, gateway):  # noqa: F811 - the module's own gateway: configuration writes allowed
+    gw = gateway("--allow-configurations", "--api-token", TOKEN)
+    poll_until(lambda: gw.get(BASE + "/publish_rate").status_code == 200, 60, interval=0.2,
+               message="the demo engine's parameters")
+    return gw
 
 
 def test_parameters_panel_reads_sets_and_shows_the_nodes_refusal(gw, page):  # noqa: F811
