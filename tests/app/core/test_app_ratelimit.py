@@ -14,7 +14,7 @@ import pytest
 from app import openapi, ratelimit
 from app.core.clientaddr import Trusted, client_address
 from common import settings
-from tests.app.openapi.test_app_openapi import check
+from tests.app.openapi.answers import check
 from tests.support.fakeworker import make_app
 
 pytestmark = pytest.mark.fakeworker(scope="module")
