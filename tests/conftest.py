@@ -38,6 +38,29 @@ def diag():
         pub.stop()
 
 
+@pytest.fixture(scope="module")
+def gateway():
+    """``gateway(*flags, exit_code=None, **options)``: a real gateway (tests.support.gateway.Gateway) started
+    with those flags and options (``env``, ``timeout`` ...), once a module: the same flags again give the same
+    gateway.  Every gateway it started is stopped at the module's end (in reverse), and one given an
+    ``exit_code`` must exit with it.  A module's ``gw`` fixture asks for its own: ``gateway("--allow-publish")``
+    (after the fixtures of the nodes it must see, so that those start first)."""
+    from tests.support.gateway import Gateway
+
+    started: dict[str, tuple[Gateway, int | None]] = {}  # repr((flags, options)) -> (gateway, exit code)
+
+    def make(*flags: str, exit_code: int | None = None, **options) -> Gateway:
+        key = repr((flags, sorted(options.items())))
+        if key not in started:
+            started[key] = (Gateway(*flags, **options), exit_code)
+        return started[key][0]
+
+    yield make
+    codes = {key: (gw.stop(), exit_code) for key, (gw, exit_code) in reversed(started.items())}
+    wrong = {key: code for key, (code, expected) in codes.items() if expected is not None and code != expected}
+    assert not wrong, f"gateways that exited with another code than expected: {wrong}"
+
+
 @pytest.fixture
 def nodes():
     """ROS nodes (``RosNode``/``publisher``) appended here are stopped at the end of the test."""

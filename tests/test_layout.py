@@ -388,16 +388,49 @@ def test_rosworker_supervisor_ipc_and_common_import_nothing_from_app():
 
 
 # Tests mirror the code: tests/<package>/ for each package, tests/system/ for the gateway as it is
-# deployed, tests/reliability/ for load and faults; only this file stays at the top.
+# deployed, tests/reliability/ for load and faults; only this file stays at the top.  The two processes'
+# tests mirror their folders (a family, core/, ...): tests/app/<folder>/, tests/rosworker/<folder>/, and the
+# modules that boot a whole gateway tests/system/<folder>/ for a folder of either (tests/system/'s top holds
+# what spans the families: end to end, nginx, the README, the demo ...).
 TEST_FOLDERS = {"app", "supervisor", "rosworker", "ipc", "common", "system", "reliability"}
+MIRRORED = {"app": ("app",), "rosworker": ("rosworker",), "system": ("app", "rosworker")}
+
+
+def code_folders(*packages: str) -> set[str]:
+    return {p.name for top in packages for p in (REPO / top).iterdir() if p.is_dir() and p.name != "__pycache__"}
+
+
+def misplaced_tests(root) -> list[str]:
+    """The test modules under ``root`` (a tests/ tree) outside the folder of what they test."""
+    misplaced = []
+    for path in root.rglob("test_*.py"):
+        parts = path.relative_to(root).parts
+        if "__pycache__" in parts or parts == ("test_layout.py",):
+            continue
+        top, folders = parts[0], parts[1:-1]
+        if top not in TEST_FOLDERS:
+            misplaced.append(str(path.relative_to(root)))
+        elif top in MIRRORED and not (folders == () and top == "system"):
+            if len(folders) != 1 or folders[0] not in code_folders(*MIRRORED[top]):
+                misplaced.append(str(path.relative_to(root)))
+    return sorted(misplaced)
 
 
 def test_every_test_module_lives_in_the_folder_of_what_it_tests():
-    misplaced = [str(p.relative_to(REPO)) for p in (REPO / "tests").rglob("test_*.py")
-                 if "__pycache__" not in p.parts and p != REPO / "tests" / "test_layout.py"
-                 and p.relative_to(REPO / "tests").parts[0] not in TEST_FOLDERS]
-    assert not misplaced, f"test modules outside tests/{{{','.join(sorted(TEST_FOLDERS))}}}/: {misplaced}"
+    misplaced = misplaced_tests(REPO / "tests")
+    assert not misplaced, (f"test modules outside tests/{{{','.join(sorted(TEST_FOLDERS))}}}/, or in tests/app/, "
+                           f"tests/rosworker/, tests/system/ but not in a folder of the code they test: {misplaced}")
     assert TEST_FOLDERS - {"system", "reliability"} <= {p.name for p in REPO.iterdir() if (p / "__init__.py").exists()}
+
+
+def test_the_test_folder_rule_catches_a_module_outside_its_folder(tmp_path):
+    for rel in ("app/faults/test_a.py", "rosworker/core/test_b.py", "system/test_c.py", "system/logs/test_d.py",
+                "ipc/test_e.py", "app/test_top.py", "rosworker/nofamily/test_f.py", "system/faults/deep/test_g.py",
+                "elsewhere/test_h.py"):
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_text("")
+    assert misplaced_tests(tmp_path) == ["app/test_top.py", "elsewhere/test_h.py", "rosworker/nofamily/test_f.py",
+                                         "system/faults/deep/test_g.py"]
 
 
 def test_every_dashboard_file_is_declared_package_data():

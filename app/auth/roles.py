@@ -14,7 +14,7 @@ code, lets operators and configurators clear faults, and lets only admin touch t
 :data:`ACTIONS` names what an operator or the dashboard asks about ("may this role publish?"),
 each by one request; :func:`summary` answers them for a role (``GET /api/v1/auth/x-medkit-whoami``,
 the dashboard) and :func:`markdown` makes the README's table from them:
-``python -m app.auth.roles --write`` rewrites it, ``tests/app/test_auth_roles.py`` fails when the
+``python -m app.auth.roles --write`` rewrites it, ``tests/app/auth/test_app_auth_roles.py`` fails when the
 committed README differs.
 """
 

@@ -4,7 +4,7 @@ The ROS worker's ``stats`` answer (the real ``rosworker/core/stats.py``), ``/hea
 (the real Flask app against a stand-in ROS worker that answers with that real snapshot), the
 OpenAPI ``HealthStatus`` schema and ``ipc/PROTOCOL.md``: each must show exactly the declared
 counters, in the declared order, so a counter added, renamed or dropped anywhere but in the
-declaration fails here.  (Through a real gateway: ``tests/app/test_app_streams.py`` checks the HTTP
+declaration fails here.  (Through a real gateway: ``tests/system/subscriptions/test_app_streams.py`` checks the HTTP
 workers' stream counters in ``/health`` against ``/metrics``.)
 """
 

@@ -26,7 +26,7 @@ from tests.support.fleet import AUTH, TOKEN, FleetGateway, Router, SimFleet
 from tests.support.gateway import Gateway
 from tests.support.procs import poll_until
 from tests.support.sse import EventStream
-from tests.system.test_fleet_sim import recorded
+from tests.system.fleet.test_fleet_sim import recorded
 
 TIMEOUT = 1.0
 SIM_ROBOTS = load.scaled(20, 200)

@@ -49,10 +49,8 @@ def robot():
 
 
 @pytest.fixture(scope="module")
-def gw(robot):
-    gateway = Gateway("--allow-publish", "--api-token", TOKEN, "--sample-timeout", "3")
-    yield gateway
-    gateway.stop()
+def gw(robot, gateway):
+    return gateway("--allow-publish", "--api-token", TOKEN, "--sample-timeout", "3")
 
 
 def app_ids(gw) -> list[str]:
