@@ -10,7 +10,7 @@ import os
 
 import pytest
 
-from tests.support.procs import private_ros_domain
+from common.harness.procs import private_ros_domain
 
 private_ros_domain()
 
@@ -22,9 +22,9 @@ def ros_domain() -> int:
 
 @pytest.fixture
 def diag():
-    """``diag(node, namespace="/", rate=10)``: a real ``/diagnostics`` publisher (bench/diagpub.py), once the
+    """``diag(node, namespace="/", rate=10)``: a real ``/diagnostics`` publisher (common/harness/diagpub.py), once the
     gateway's subscription has matched it (no report is lost to discovery); stopped after the test."""
-    from bench.diagpub import DiagPub
+    from common.harness.diagpub import DiagPub
 
     started: list[DiagPub] = []
 
@@ -40,12 +40,12 @@ def diag():
 
 @pytest.fixture(scope="module")
 def gateway():
-    """``gateway(*flags, exit_code=None, **options)``: a real gateway (tests.support.gateway.Gateway) started
+    """``gateway(*flags, exit_code=None, **options)``: a real gateway (common.harness.gateway.Gateway) started
     with those flags and options (``env``, ``timeout`` ...), once a module: the same flags again give the same
     gateway.  Every gateway it started is stopped at the module's end (in reverse), and one given an
     ``exit_code`` must exit with it.  A module's ``gw`` fixture asks for its own: ``gateway("--allow-publish")``
     (after the fixtures of the nodes it must see, so that those start first)."""
-    from tests.support.gateway import Gateway
+    from common.harness.gateway import Gateway
 
     started: dict[str, tuple[Gateway, int | None]] = {}  # repr((flags, options)) -> (gateway, exit code)
 

@@ -17,11 +17,11 @@ import time
 import pytest
 import zmq
 
+from common.harness.procs import poll_until
 from ipc import events, protocol
 from ipc.client import RosWorkerClient
 from ipc.server import ControlServer, LockHeld, RuntimeLock, bind_publisher
 from rosworker.core.stats import Stats
-from tests.support.procs import poll_until
 
 HOLD = """
 import sys, time

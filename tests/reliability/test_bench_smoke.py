@@ -14,7 +14,7 @@ import sys
 
 import pytest
 
-from tests.support.procs import REPO
+from common.harness.procs import REPO
 
 CASES = {"floor8", "floor1", "warm8", "warm1", "echo8", "echo1", "hop1", "inside", "old", "cold", "image",
          "image_b64", "idle", "memory", "streams", "fanout", "stream_image", "made_up", "sub_changes",

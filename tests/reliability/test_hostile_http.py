@@ -28,6 +28,8 @@ import requests
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 from ipc.client import RosWorkerClient
 from tests.reliability.load import (
     Answer,
@@ -39,8 +41,7 @@ from tests.reliability.load import (
     record,
     scaled,
 )
-from tests.support.gateway import Gateway
-from tests.support.procs import RosNode, poll_until
+from tests.support.rospub import RosNode
 
 FUZZ_CASES = scaled(500, 5000)
 BODY_CASES = scaled(300, 3000)

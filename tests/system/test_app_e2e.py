@@ -19,9 +19,10 @@ import requests
 
 from app.core import unimplemented
 from app.core.entities import PARAM_NAMES, host_component_id
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 from tests.support import floats
-from tests.support.gateway import Gateway
-from tests.support.procs import RosNode, poll_until, publisher
+from tests.support.rospub import RosNode, publisher
 
 TEMP = "/powertrain/engine/temperature"
 PRESSURE = "/chassis/brakes/pressure"

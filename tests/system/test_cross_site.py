@@ -23,9 +23,10 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import pytest
 
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 from tests.support.browser import launch, require_chromium
-from tests.support.gateway import Gateway
-from tests.support.procs import RosNode, poll_until, unique_topic
+from tests.support.rospub import RosNode, unique_topic
 
 PAGE = b"""<!doctype html>
 <html><head><meta charset="utf-8"><title>another site</title></head><body>

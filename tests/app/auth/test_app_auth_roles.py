@@ -10,7 +10,7 @@ import pytest
 from app.auth import roles
 from app.core import target
 from common import settings
-from tests.support.procs import REPO
+from common.harness.procs import REPO
 
 
 def test_the_readme_table_is_the_one_the_roles_make():

@@ -87,7 +87,7 @@ def test_an_ipv6_origin_is_an_exact_origin_not_a_pattern():
     as configured in another spelling) gets the CORS headers on a request and a
     preflight; ``http://d:8443``, ``http://0:8443`` and the other neighbours get none.
     """
-    from tests.support.gateway import Gateway
+    from common.harness.gateway import Gateway
 
     gw = Gateway("--cors-origins", f"http://[FD00:0::10]:8443,{UI}")  # another spelling of IPV6_UI
     try:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import subprocess
 import sys
 
-from tests.support.procs import REPO
+from common.harness.procs import REPO
 
 HTTP_MODULES = ("app.wsgi", "app.core.errors", "app.core.rosclient", "app.core.entities", "app.openapi",
                 "app.core.common", "app.core.root", "app.core.discovery", "app.data.routes",

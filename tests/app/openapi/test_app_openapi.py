@@ -13,9 +13,9 @@ import jsonschema
 import pytest
 
 from app import openapi
+from common.harness.procs import REPO
 from tests.app.openapi.answers import TEMPERATURE, TOKEN, Exercise, part_operations, parts
 from tests.support.fakeworker import ROBOT, FakeWorker, data_sample, make_app
-from tests.support.procs import REPO
 
 
 @pytest.fixture(scope="module")

@@ -18,8 +18,8 @@ from pathlib import Path
 import pytest
 
 from app.core.ui import SECURITY_HEADERS, UI_DIR
+from common.harness.procs import REPO
 from tests.support.fakeworker import make_app
-from tests.support.procs import REPO
 
 
 @pytest.fixture

@@ -13,8 +13,8 @@ import sys
 import threading
 import time
 
+from common.harness.procs import Proc, poll_until
 from ipc.errors import IpcError
-from tests.support.procs import Proc, poll_until
 from tests.support.rosworker import RosWorker
 
 CALLS = 3

@@ -11,10 +11,11 @@ import pytest
 import zmq
 
 from app.core.errors import ApiError
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 from ipc import protocol
 from ipc.errors import IpcError
-from tests.support.gateway import Gateway
-from tests.support.procs import RosNode, poll_until, publisher, unique_topic
+from tests.support.rospub import RosNode, publisher, unique_topic
 from tests.support.rosworker import RosWorker
 
 

@@ -17,9 +17,9 @@ import threading
 
 import pytest
 
+from common.harness.procs import poll_until
 from rosworker.core import state as state_mod
 from rosworker.core.state import RestartState
-from tests.support.procs import poll_until
 
 SUB_A = {"id": "sub_a", "topic": "/a", "interval": "fast", "expires_at_ns": 1}
 SUB_B = {"id": "sub_b", "topic": "/b", "interval": "slow", "expires_at_ns": 2}

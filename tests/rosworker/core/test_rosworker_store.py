@@ -12,8 +12,8 @@ import sqlite3
 import threading
 import time
 
+from common.harness.procs import poll_until
 from rosworker.core.store import Store, Table
-from tests.support.procs import poll_until
 
 THINGS = Table("things", "CREATE TABLE IF NOT EXISTS things (id TEXT PRIMARY KEY, doc TEXT NOT NULL)",
                upsert="INSERT OR REPLACE INTO things (id, doc) VALUES (?, ?)", delete="DELETE FROM things WHERE id = ?",

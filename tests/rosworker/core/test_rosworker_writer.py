@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import threading
 
+from common.harness.procs import poll_until
 from rosworker.core.writer import LatestWriter, once_written
-from tests.support.procs import poll_until
 
 
 class Disk:

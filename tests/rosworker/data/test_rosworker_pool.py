@@ -9,9 +9,10 @@ import time
 
 import pytest
 
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 from common.settings import RESTART_ENV
-from tests.support.gateway import Gateway
-from tests.support.procs import RosNode, poll_until, publisher, unique_topic
+from tests.support.rospub import RosNode, publisher, unique_topic
 from tests.support.rosworker import SHADOW, RosWorker
 
 

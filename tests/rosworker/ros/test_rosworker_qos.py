@@ -9,8 +9,9 @@ import orjson
 import pytest
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
+from common.harness.procs import poll_until
 from rosworker.ros import qos
-from tests.support.procs import RosNode, poll_until, publisher, unique_topic
+from tests.support.rospub import RosNode, publisher, unique_topic
 from tests.support.rosworker import RosWorker
 
 

@@ -8,7 +8,7 @@ import uuid
 import orjson
 import pytest
 
-from tests.support.procs import publisher
+from tests.support.rospub import publisher
 from tests.support.rosworker import RosWorker
 
 

@@ -20,6 +20,7 @@ import pytest
 import zmq
 
 from app.core.errors import ApiError
+from common.harness.procs import poll_until
 from ipc import events, protocol
 from ipc.errors import IpcError
 from rosworker.core.events import EventsChannel
@@ -27,7 +28,6 @@ from rosworker.core.graph import GraphMonitor
 from rosworker.core.samplers import SamplerRegistry
 from rosworker.data.ticks import TopicTicks
 from rosworker.subscriptions.registry import StreamRegistry
-from tests.support.procs import poll_until
 from tests.support.rosunit import FakeNode, RosThread
 
 TOPIC = "/engine/temperature"

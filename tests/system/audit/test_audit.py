@@ -12,9 +12,10 @@ from pathlib import Path
 import pytest
 import requests
 
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 from tests.support.auth import ENV, JWT_SECRET, SECRETS, bearer, grant
-from tests.support.gateway import Gateway
-from tests.support.procs import RosNode, poll_until
+from tests.support.rospub import RosNode
 
 APP = "audit_listener"
 CMD = "/audit_test/cmd"

@@ -18,9 +18,10 @@ import requests
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 from tests.support.auth import ENV, JWT_SECRET, SECRETS, bearer, grant
-from tests.support.gateway import Gateway
-from tests.support.procs import RosNode, poll_until
+from tests.support.rospub import RosNode
 
 APP = "hostile_auth_app"
 EXAMPLES = 300

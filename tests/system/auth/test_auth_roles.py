@@ -19,9 +19,10 @@ import pytest
 import requests
 
 from app.auth import roles
+from common.harness.gateway import Gateway
+from common.harness.procs import Proc, poll_until
 from tests.support.auth import ENV, ROLES, bearer, grant
-from tests.support.gateway import Gateway
-from tests.support.procs import Proc, RosNode, poll_until
+from tests.support.rospub import RosNode
 
 LISTENER = "auth_listener"
 CMD = "/auth_test/cmd"

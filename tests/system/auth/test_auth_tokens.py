@@ -18,9 +18,9 @@ import psutil
 import pytest
 import requests
 
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 from tests.support.auth import ENV, JWT_SECRET, SECRETS, bearer, grant
-from tests.support.gateway import Gateway
-from tests.support.procs import poll_until
 
 OP = "/apps/nope/operations/x/executions"   # an operator's write: allowed, then 404 (no such app)
 

@@ -22,7 +22,8 @@ from hypothesis import strategies as st
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
-from tests.support.procs import poll_until, publisher, unique_topic
+from common.harness.procs import poll_until
+from tests.support.rospub import publisher, unique_topic
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -286,7 +287,7 @@ def test_hostile_multipart_bodies_get_a_clear_answer(gw, boundary, preamble, par
 
 
 def test_a_sigkill_mid_write_leaves_no_listed_partial_file(robot, diag):
-    from tests.support.gateway import Gateway
+    from common.harness.gateway import Gateway
 
     gw = Gateway("--fault-rosbag-enabled", "--fault-rosbag-topics", robot["temp"], "--fault-rosbag-duration-s", "1",
                  "--fault-rosbag-duration-after-s", "0", "--debug-commands")
@@ -320,7 +321,7 @@ def test_a_sigkill_mid_write_leaves_no_listed_partial_file(robot, diag):
 
 
 def test_an_unwritable_storage_directory_fails_the_recording_alone(robot, diag, tmp_path):
-    from tests.support.gateway import Gateway
+    from common.harness.gateway import Gateway
 
     blocker = tmp_path / "a-file"
     blocker.write_text("not a directory")

@@ -18,8 +18,9 @@ import requests
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tests.support.gateway import Gateway
-from tests.support.procs import Proc, RosNode, poll_until
+from common.harness.gateway import Gateway
+from common.harness.procs import Proc, poll_until
+from tests.support.rospub import RosNode
 
 TOKEN = "cfg-token-0123456789abcdef"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}

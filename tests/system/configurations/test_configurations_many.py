@@ -15,7 +15,7 @@ import sys
 import pytest
 import requests
 
-from tests.support.procs import Proc, poll_until
+from common.harness.procs import Proc, poll_until
 
 TOKEN = "cfg-many-token-0123456789"
 PROCESSES, PER_PROCESS = 8, 25

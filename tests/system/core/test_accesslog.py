@@ -20,8 +20,8 @@ import pytest
 
 from app.core import accesslog
 from common import settings
-from tests.support.gateway import Gateway
-from tests.support.procs import poll_until
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 
 JOURNALD_BURST = 10_000  # journald's default RateLimitBurst ...
 JOURNALD_WINDOW = 30.0   # ... per RateLimitIntervalSec

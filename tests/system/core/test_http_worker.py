@@ -20,8 +20,8 @@ import psutil
 import pytest
 import requests
 
-from tests.support.gateway import Gateway
-from tests.support.procs import Proc, free_port, poll_until
+from common.harness.gateway import Gateway
+from common.harness.procs import Proc, free_port, poll_until
 
 HEADER_TIMEOUT = 2.0
 BODY_TIMEOUT = 2.0

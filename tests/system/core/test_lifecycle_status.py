@@ -14,8 +14,9 @@ import time
 import pytest
 import requests
 
-from tests.support.gateway import Gateway
-from tests.support.procs import Proc, RosNode, poll_until
+from common.harness.gateway import Gateway
+from common.harness.procs import Proc, poll_until
+from tests.support.rospub import RosNode
 
 SPEC = {"namespace": "/lc", "nodes": [{"name": "lc_idle"}, {"name": "lc_running", "activate": True},
                                       {"name": "lc_stuck", "hang": True}]}

@@ -8,8 +8,9 @@ import threading
 
 import pytest
 
-from tests.support.gateway import Gateway
-from tests.support.procs import RosNode, poll_until, unique_topic
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
+from tests.support.rospub import RosNode, unique_topic
 
 
 @pytest.fixture

@@ -2,7 +2,7 @@
 
 One gateway for the module: STALE after 2.5 s of silence, confirmed after 3 failing reports, healed after
 2 passing ones, and ``debug_sleep`` (a ROS thread that is busy for a while, as under load).  The
-statuses come from real ``/diagnostics`` publishers in other processes (``bench/diagpub.py``).
+statuses come from real ``/diagnostics`` publishers in other processes (``common/harness/diagpub.py``).
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ import uuid
 import pytest
 import requests
 
-from tests.support.gateway import Gateway
-from tests.support.procs import poll_until
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 from tests.support.sse import sse_events
 
 TOKEN = "fault-flap-token-0123"

@@ -13,9 +13,9 @@ import time
 import pytest
 import requests
 
-from bench.diagpub import DiagPub
-from tests.support.gateway import Gateway
-from tests.support.procs import poll_until
+from common.harness.diagpub import DiagPub
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 from tests.support.sse import sse_events
 
 FAST = ("--fault-confirm-count", "1", "--fault-heal-count", "1", "--fault-stale-s", "0")

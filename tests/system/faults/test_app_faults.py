@@ -16,8 +16,9 @@ import requests
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from tests.support.gateway import BIN, Gateway
-from tests.support.procs import poll_until, publisher
+from common.harness.gateway import BIN, Gateway
+from common.harness.procs import poll_until
+from tests.support.rospub import publisher
 
 TOKEN = "fault-clear-token-0123"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}

@@ -8,9 +8,9 @@ import tempfile
 
 import pytest
 
-from bench.diagpub import DiagPub
-from tests.support.gateway import Gateway
-from tests.support.procs import poll_until
+from common.harness.diagpub import DiagPub
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 
 FAST = ("--fault-confirm-count", "1", "--fault-heal-count", "1")
 

@@ -32,9 +32,10 @@ import uuid
 import pytest
 import requests
 
-from tests.support.gateway import Gateway
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 from tests.support.metrics import parse, value
-from tests.support.procs import RosNode, poll_until
+from tests.support.rospub import RosNode
 from tests.support.sse import EventStream
 
 APP = "fleet_robot"

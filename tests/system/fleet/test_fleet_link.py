@@ -18,11 +18,11 @@ import orjson
 import pytest
 import requests
 
+from common.harness.gateway import Gateway
+from common.harness.procs import free_port, poll_until
 from ipc import fleet as wire
 from tests.support.fleet import AUTH, TOKEN, Router
-from tests.support.gateway import Gateway
 from tests.support.linepub import LinePublisher
-from tests.support.procs import free_port, poll_until
 
 ROBOT = "robot_l"
 

@@ -1,4 +1,4 @@
-"""The fleet gateway against simulated robots (``bench/fleetsim.py``): many robots, slow, hung, leaving.
+"""The fleet gateway against simulated robots (``common/harness/fleetsim.py``): many robots, slow, hung, leaving.
 
 The robots are one process of simulated fleet links on a real Zenoh router (``sovd-zenoh-router``),
 answering from listings made by the gateway's own entity code (``app/entities.py``); the fleet
@@ -20,9 +20,9 @@ import pytest
 import requests
 
 from app.core import entities
+from common.harness.procs import poll_until
 from tests.support.fleet import AUTH, TOKEN, FleetGateway, Router, SimFleet
 from tests.support.metrics import parse, value
-from tests.support.procs import poll_until
 from tests.support.sse import EventStream
 
 ROBOTS = 12

@@ -21,11 +21,12 @@ from pathlib import Path
 
 import pytest
 
-from bench.diagpub import DiagPub
+from common.harness.diagpub import DiagPub
+from common.harness.gateway import Gateway
+from common.harness.procs import free_port, poll_until
 from ipc import fleet as wire
 from tests.support.fleet import AUTH, TOKEN, FleetGateway, Router, make_pki
-from tests.support.gateway import Gateway
-from tests.support.procs import RosNode, free_port, poll_until
+from tests.support.rospub import RosNode
 from tests.support.sse import EventStream
 
 DOCS = Path(__file__).resolve().parents[3] / "docs" / "fleet"

@@ -28,11 +28,12 @@ import psutil
 import pytest
 import requests
 
-from bench.diagpub import DiagPub
+from common.harness.diagpub import DiagPub
+from common.harness.gateway import Gateway
+from common.harness.procs import Proc, claim_domain, poll_until
 from tests.support.fleet import AUTH, TOKEN, FleetGateway, Router
-from tests.support.gateway import Gateway
 from tests.support.metrics import parse, value
-from tests.support.procs import Proc, RosNode, claim_domain, poll_until
+from tests.support.rospub import RosNode
 from tests.support.sse import EventStream
 
 ROBOTS = ("robot_a", "robot_b", "robot_c")

@@ -11,9 +11,10 @@ import signal
 import pytest
 import requests
 
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 from tests.support.auth import ENV, bearer, grant
-from tests.support.gateway import Gateway
-from tests.support.procs import RosNode, poll_until
+from tests.support.rospub import RosNode
 
 APP = "lock_listener"
 CMD = "/lock_test/cmd"

@@ -1,6 +1,6 @@
 """``{entity}/logs`` and ``logs/configuration`` through a real gateway, fed by real nodes logging to /rosout.
 
-The nodes are rclpy processes of their own (``bench/roslogger.py``); the
+The nodes are rclpy processes of their own (``common/harness/roslogger.py``); the
 gateway is the operator's ``sovd-gateway`` with two HTTP workers.  Covered: the
 answer's shape (medkit's), the severity and context filters, the aggregation
 over a component and a function, every error, the configuration shared by
@@ -18,9 +18,9 @@ import requests
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from bench.roslogger import LoggerNode
-from tests.support.gateway import Gateway
-from tests.support.procs import poll_until
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
+from common.harness.roslogger import LoggerNode
 
 TOKEN = "logs-secret-token"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}

@@ -16,9 +16,9 @@ import uuid
 
 import pytest
 
-from bench.roslogger import LoggerNode
-from tests.support.gateway import Gateway
-from tests.support.procs import poll_until
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
+from common.harness.roslogger import LoggerNode
 
 BUFFER = 50
 MAX_BYTES = 2**16

@@ -22,7 +22,8 @@ import pytest
 import requests
 
 from app.core.entities import host_component_id
-from tests.support.procs import poll_until, publisher
+from common.harness.procs import poll_until
+from tests.support.rospub import publisher
 
 BIN = Path(sys.executable).parent
 HOST_ID = host_component_id(os.uname().nodename)

@@ -15,8 +15,8 @@ import threading
 import pytest
 import requests
 
-from tests.support.gateway import Gateway
-from tests.support.procs import Proc, poll_until
+from common.harness.gateway import Gateway
+from common.harness.procs import Proc, poll_until
 
 TOKEN = "ops-token-0123456789abcdef"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}

@@ -15,7 +15,7 @@ import requests
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tests.support.procs import poll_until
+from common.harness.procs import poll_until
 from tests.system.operations.test_operations import OpsNode
 
 TOKEN = "faults-token-0123456789abcdef"

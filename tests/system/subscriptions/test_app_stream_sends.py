@@ -16,7 +16,8 @@ import time
 import pytest
 import requests
 
-from tests.support.procs import RosNode, poll_until
+from common.harness.procs import poll_until
+from tests.support.rospub import RosNode
 
 APP = "sender"
 TOPIC = "/sender/count"

@@ -24,10 +24,11 @@ import requests
 
 from app.sse.stream import STREAM_BUFFER_BYTES, STREAM_SNDBUF
 from app.subscriptions.hub import SILENT_CHECK, StreamHub
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 from ipc.errors import IpcError
-from tests.support.gateway import Gateway
 from tests.support.metrics import families, value
-from tests.support.procs import RosNode, poll_until
+from tests.support.rospub import RosNode
 from tests.support.sse import EventStream
 
 TOPIC = "/s/temperature"

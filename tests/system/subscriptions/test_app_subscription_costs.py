@@ -17,8 +17,9 @@ import time
 import pytest
 import requests
 
-from tests.support.gateway import Gateway
-from tests.support.procs import poll_until, publisher, unique_topic
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
+from tests.support.rospub import publisher, unique_topic
 from tests.support.sse import EventStream
 
 

@@ -18,8 +18,9 @@ from datetime import UTC, datetime
 
 import requests
 
-from tests.support.gateway import Gateway
-from tests.support.procs import poll_until, unique_topic
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
+from tests.support.rospub import unique_topic
 from tests.support.sse import EventStream
 from tests.support.wallclock import WallClock
 

@@ -15,7 +15,7 @@ import time
 import pytest
 import requests
 
-from tests.support.procs import Proc, poll_until
+from common.harness.procs import Proc, poll_until
 
 TOKEN = "feeds-token-0123456789abcdef"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}

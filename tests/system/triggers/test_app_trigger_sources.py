@@ -20,10 +20,10 @@ import uuid
 import pytest
 import requests
 
-from bench.diagpub import DiagPub
-from bench.roslogger import LoggerNode
-from tests.support.gateway import Gateway
-from tests.support.procs import poll_until
+from common.harness.diagpub import DiagPub
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
+from common.harness.roslogger import LoggerNode
 from tests.support.sse import EventStream
 
 TOKEN = "trigger-sources-secret"

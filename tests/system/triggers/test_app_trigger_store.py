@@ -14,10 +14,10 @@ import psutil
 import pytest
 import requests
 
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 from ipc.errors import IpcError
-from tests.support.gateway import Gateway
 from tests.support.linepub import LinePublisher
-from tests.support.procs import poll_until
 
 APP = f"trig_store_{os.getpid()}"
 TOPIC = "/trig_store/value"

@@ -25,9 +25,10 @@ import psutil
 import pytest
 import requests
 
-from tests.support.gateway import Gateway
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 from tests.support.linepub import LinePublisher
-from tests.support.procs import RosNode, poll_until
+from tests.support.rospub import RosNode
 from tests.support.sse import EventStream
 
 TOKEN = "trigger-secret-for-tests"

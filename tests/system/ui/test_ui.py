@@ -21,9 +21,9 @@ import sys
 import pytest
 import requests
 
+from common.harness.gateway import Gateway
+from common.harness.procs import Proc, poll_until
 from tests.support.browser import Watch, launch, require_chromium
-from tests.support.gateway import Gateway
-from tests.support.procs import Proc, poll_until
 
 TOKEN = "ui-test-token-0123456789"
 # The demo robot's apps and one topic of each (demo/robot.py).

@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import pytest
 
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 from tests.support.auth import ENV, SECRETS
-from tests.support.gateway import Gateway
-from tests.support.procs import poll_until
 from tests.system.ui.test_ui import NUMBER, browser, expect, leaf, page, robot  # noqa: F401 - fixtures
 
 TEMPERATURE = "/ui/#/apps/temp_sensor/data/powertrain/engine/temperature"

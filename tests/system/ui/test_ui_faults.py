@@ -7,10 +7,10 @@ import tempfile
 
 import pytest
 
-from bench.diagpub import DiagPub
+from common.harness.diagpub import DiagPub
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 from tests.support.browser import Watch, launch, require_chromium
-from tests.support.gateway import Gateway
-from tests.support.procs import poll_until
 
 TOKEN = "ui-faults-token-0123456789"
 
@@ -156,7 +156,7 @@ def test_clear_is_not_offered_without_fault_clear_and_faults_of_an_earlier_run_a
 
 def test_a_faults_recording_is_shown_with_its_download_duration_topics_and_size(tab):
     """Issue 32: a confirmed fault's recording in its detail; the link downloads the MCAP file."""
-    from tests.support.procs import publisher, unique_topic
+    from tests.support.rospub import publisher, unique_topic
 
     topic = unique_topic("ui/rec")
     source = publisher("ui_recorded", topic, "std_msgs/msg/Float64", {"data": 1.0}, rate=20, counter="data")

@@ -1,6 +1,6 @@
 """The dashboard's robot picker on the fleet gateway (issue 34), in a real browser (chromium).
 
-The robots are simulated (``bench/fleetsim.py``) behind a real router and a real fleet gateway.  The
+The robots are simulated (``common/harness/fleetsim.py``) behind a real router and a real fleet gateway.  The
 picker lists them with their link state and latency; picking one opens the dashboard on that robot
 through the fleet gateway (``/fleet/<fleet_id>/ui/``, where every read needs the token, so its field
 shows at once); "All robots" goes back to the fleet's merged view.
@@ -12,9 +12,9 @@ import re
 
 import pytest
 
+from common.harness.procs import poll_until
 from tests.support.browser import Watch, launch, require_chromium
 from tests.support.fleet import TOKEN, FleetGateway, Router, SimFleet
-from tests.support.procs import poll_until
 from tests.system.fleet.test_fleet_sim import recorded
 
 

@@ -7,7 +7,7 @@ import re
 
 import pytest
 
-from tests.support.procs import poll_until
+from common.harness.procs import poll_until
 from tests.system.ui.test_ui import TOKEN, browser, expect, page, robot, sign_in  # noqa: F401 - fixtures
 
 VIEWPORT = {"width": 1360, "height": 860}

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import pytest
 
-from tests.support.gateway import Gateway
-from tests.support.procs import poll_until
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 from tests.system.ui.test_ui import TOKEN, browser, expect, page, robot, sign_in  # noqa: F401 - fixtures
 
 BASE = "/apps/temp_sensor/configurations"
