@@ -50,13 +50,21 @@ def gw(fleet, gateway):
 def test_a_component_with_200_nodes_lists_and_resets_all_of_them(gw, fleet):
     host = gw.host()
     assert gw.get("/health").json()["x-medkit-configurations"]["parameter_client_cap"] == 64
-    r = gw.get(f"/components/{host}/configurations", timeout=120)
-    assert r.status_code == 200, r.text
-    body = r.json()
-    ext = body["x-medkit"]
     mine = {f"/arm/{app}" for app in fleet}
-    assert not mine & set(ext.get("unavailable_nodes") or []), ext.get("unavailable_nodes")
-    assert not mine & set(ext.get("failed_nodes") or []), ext.get("failed_nodes")
+    # Up to three listings: on a loaded machine a process spinning 25 nodes can answer some after their
+    # timeout (each such node then answers the next listing at once); the line for a client set must never
+    # make one unavailable (before the fix, 136 of the 200 were on every listing).
+    missing_per_try = []
+    for _ in range(3):
+        r = gw.get(f"/components/{host}/configurations", timeout=120)
+        assert r.status_code == 200, r.text
+        body = r.json()
+        ext = body["x-medkit"]
+        missing = mine & (set(ext.get("unavailable_nodes") or []) | set(ext.get("failed_nodes") or []))
+        missing_per_try.append(len(missing))
+        if not missing:
+            break
+    assert not missing, (missing_per_try, sorted(missing)[:10])
     ids = {item["id"] for item in body["items"]}
     assert {f"{app}:gain" for app in fleet} <= ids and {f"{app}:index" for app in fleet} <= ids
     # the cap was met (/health shows the ROS worker's counters once it answers its stats in time)
@@ -67,7 +75,10 @@ def test_a_component_with_200_nodes_lists_and_resets_all_of_them(gw, fleet):
     for app in fleet[::25]:
         assert requests.put(f"{gw.api}/apps/{app}/configurations/gain", json={"data": 2.5}, headers=auth,
                             timeout=15).status_code == 200
-    reset = requests.delete(f"{gw.api}/components/{host}/configurations", headers=auth, timeout=120)
+    for _ in range(3):  # 207 names the nodes that did not answer in time (a loaded machine): reset again
+        reset = requests.delete(f"{gw.api}/components/{host}/configurations", headers=auth, timeout=120)
+        if reset.status_code != 207:
+            break
     assert reset.status_code == 204, reset.text
     for app in fleet[::25]:
         assert gw.get(f"/apps/{app}/configurations/gain").json()["data"] == 1.0
