@@ -15,9 +15,11 @@ every kind:
   added to the Prometheus metrics (``core/metrics.py``) once per round of the
   ticker, not once per frame: ``/health`` and ``/metrics`` sum them over every
   HTTP worker, whatever the kind of stream;
-- the ticker (every ``TICK``): the stall cut (a write that lasts
+- the ticker (every ``TICK`` while a stream is open): the stall cut (a write that lasts
   ``stream_send_timeout``), the look at silent streams' connections (their client
   left), and, once the HTTP worker stops, the end of every stream (with ``last``).
+  A hub with no stream open sleeps until one opens (``IDLE_TICK`` at most, for its
+  stop check): an idle gateway's HTTP workers do not wake 20 times a second per kind.
 
 A hub is made per process, after the fork, when its first stream opens
 (:func:`hub_of`; nothing at import time).
@@ -33,6 +35,7 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 import gevent
+import gevent.event
 import gevent.socket
 from flask import Flask, current_app
 
@@ -44,7 +47,8 @@ from .stream import GONE_CHECK, STREAM_SNDBUF, Stream, gone
 
 log = logging.getLogger("sovd.http.sse")
 
-TICK = 0.05          # seconds between the ticker's rounds
+TICK = 0.05          # seconds between the ticker's rounds while a stream is open
+IDLE_TICK = 1.0      # seconds at most between its rounds while none is (a stream's opening wakes it)
 EXTENSION = "sovd_sse_hubs"
 
 
@@ -62,6 +66,7 @@ class Hub(channel.Subscriber):
         self._flushed = {"frames_sent": 0, "frames_dropped": 0}  # counted into ``prom`` so far
         self.sending: set[Stream] = set()      # direct streams in a blocking write (the stall cut)
         self._next_gone_scan = 0.0
+        self._wake = gevent.event.Event()      # set by a stream's opening and the last one's end
 
     # ---- what a kind of hub says ----------------------------------------------------------------
     def added(self, stream: Stream) -> None:
@@ -83,6 +88,7 @@ class Hub(channel.Subscriber):
         self.counters["open_streams"] += 1
         self.prom.streams_open.inc()
         self.added(stream)
+        self._wake.set()
 
     def close(self, stream: Stream) -> None:
         stream.ended = True
@@ -92,6 +98,8 @@ class Hub(channel.Subscriber):
         self.counters["open_streams"] -= 1
         self.prom.streams_open.dec()
         self.removed(stream)
+        if not self.streams:
+            self._wake.set()   # one more round at once: its counters into the metrics
 
     def watch(self, index: dict[Any, set[Stream]], name: Any, stream: Stream, key: bytes) -> None:
         """``stream`` watches ``name`` of ``index`` (a kind's own: a key, a trigger id); the first
@@ -125,7 +133,11 @@ class Hub(channel.Subscriber):
     def _tick(self) -> None:
         while True:
             try:
-                gevent.sleep(TICK)
+                if self.streams:
+                    gevent.sleep(TICK)
+                else:
+                    self._wake.wait(IDLE_TICK)
+                self._wake.clear()
                 now = time.monotonic()
                 self._flush_metrics()
                 self._cut_stalled(now)
