@@ -43,7 +43,7 @@ reliability: $(STAMP)
 
 # The README's picture of the dashboard, taken by its browser test (CI=true: fail, not skip, without chromium).
 screenshot: $(STAMP)
-	CI=true SOVD_UI_SCREENSHOT=docs/dashboard.png $(BIN)/python -m pytest tests/system/test_ui.py -q -p no:randomly \
+	CI=true SOVD_UI_SCREENSHOT=docs/dashboard.png $(BIN)/python -m pytest tests/system/ui/test_ui.py -q -p no:randomly \
 		-k live_value_changes_on_screen
 
 clean:

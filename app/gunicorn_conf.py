@@ -22,11 +22,11 @@ holds no defaults of its own: it maps the gateway's settings onto gunicorn's.
   so gunicorn never closes an idle connection that nginx is about to reuse.
 - Proxy headers (``X-Forwarded-*``) are trusted only from ``forwarded_allow_ips``.
 - The access log is off unless ``access_log`` is set; then its lines are
-  rate-limited by :class:`app.accesslog.AccessLogger` and carry the request id.
+  rate-limited by :class:`app.core.accesslog.AccessLogger` and carry the request id.
 - TLS: ``tls_cert`` and ``tls_key`` are gunicorn's ``certfile`` and ``keyfile``; :func:`ssl_context`
   refuses anything older than ``tls_min_version`` (TLS 1.2 by default).
 - Prometheus: the supervisor sets ``PROMETHEUS_MULTIPROC_DIR`` for gunicorn
-  (``app/metrics.py``); when a worker exits, :func:`child_exit` marks its
+  (``app/core/metrics.py``); when a worker exits, :func:`child_exit` marks its
   metric files dead, as prometheus_client's multiprocess mode prescribes.
 """
 
@@ -59,7 +59,7 @@ proc_name = "sovd-gateway-http"
 loglevel = _cfg.log_level
 errorlog = "-"
 # Access lines on stdout (the journal) only when asked for, and then at a bounded rate.
-logger_class = "app.accesslog.AccessLogger"
+logger_class = "app.core.accesslog.AccessLogger"
 accesslog = "-" if _cfg.access_log else None
 access_log_format = '%(h)s "%(r)s" %(s)s %(B)s %(M)sms request=%({x-request-id}o)s'
 

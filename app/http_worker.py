@@ -76,7 +76,7 @@ def stopping() -> threading.Event:
 
 
 class BodyTimeout(RequestTimeout):
-    """The request body did not arrive within ``body_timeout``: a JSON 408 (``app/errors.py``)."""
+    """The request body did not arrive within ``body_timeout``: a JSON 408 (``app/core/errors.py``)."""
 
 
 class HttpWorker(GeventWorker):
@@ -111,8 +111,8 @@ class HttpWorker(GeventWorker):
 
     def run(self):
         self._loop = gevent.get_hub().loop
-        # bulk-data downloads: zero-copy, never blocking the loop (app/bulk_data/sendfile.py)
-        from .bulk_data import sendfile
+        # bulk-data downloads: zero-copy, never blocking the loop (app/core/sendfile.py)
+        from .core import sendfile
 
         sendfile.install()
         stop = stopping()

@@ -7,7 +7,7 @@ one.  Both are off by default.  A request is let through only when both its
 client's bucket and the global one hold a token; a refused request takes
 nothing (so a client over its own limit does not drain the global bucket).
 The client is the token's client id when the request carries a good bearer token, else the real
-address behind nginx (``app/clientaddr.py``; ``app/auth/``'s ``rate_key``).  An event
+address behind nginx (``app/core/clientaddr.py``; ``app/auth/``'s ``rate_key``).  An event
 stream is one request, counted when it opens.  ``/api/v1/health`` and
 ``/metrics`` are never limited, so monitoring cannot be locked out; nor
 are CORS preflights, which a browser sends before the request that counts
@@ -61,8 +61,9 @@ from flask import Flask, Response, current_app, request
 from common import runfiles, settings
 from common.process import PerProcess
 
-from . import auth, metrics
-from .errors import ApiError, error_response
+from . import auth
+from .core import metrics
+from .core.errors import ApiError, error_response
 
 log = logging.getLogger("sovd.http.ratelimit")
 

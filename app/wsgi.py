@@ -2,9 +2,15 @@
 
 Nothing happens at import time.  ``create_app`` runs in each HTTP worker
 after gunicorn forked it; the ROS-worker client it sets up opens its ZeroMQ
-context only on first use (``app/rosclient.py``).  Settings come from
+context only on first use (``app/core/rosclient.py``), and a family's stream hub
+is made when its first stream opens (``app/sse/hub.py``).  Settings come from
 ``common.settings.load()``: the supervisor hands them to gunicorn's workers as
 ``SOVD_*`` environment variables.
+
+The app is the core (``app/core/``: the request hooks, the errors, the ROS
+worker's client, discovery, the root routes, the dashboard) and the resource
+families (``app/<family>/``, found by ``core/family.py``'s ``discover``), each
+plugged in by its ``FAMILY.init_app(app)``.
 
 ``test_config`` overrides settings by their name (``runtime_dir``,
 ``allow_publish``, ``sample_timeout`` ...); any other key goes into
@@ -19,7 +25,21 @@ from flask import Flask
 
 from common import settings
 
-from . import clientaddr, cors, errors, metrics, ratelimit, requestid, rosclient, streams
+from . import audit, auth, ratelimit
+from .core import (
+    clientaddr,
+    common,
+    cors,
+    discovery,
+    errors,
+    family,
+    metrics,
+    requestid,
+    root,
+    rosclient,
+    ui,
+    unimplemented,
+)
 
 
 def create_app(test_config: dict[str, Any] | None = None) -> Flask:
@@ -34,8 +54,6 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
     app.config["SOVD"] = cfg
     app.config["MAX_CONTENT_LENGTH"] = cfg.max_body_bytes
 
-    from .routes import common, data, discovery, root, subscriptions, ui, unimplemented
-
     # `data//a/b` must reach the data route as `/a/b`, not be redirected to `data/a/b`.
     app.url_map.merge_slashes = False
     app.url_map.converters["collection"] = common.CollectionConverter
@@ -47,51 +65,27 @@ def create_app(test_config: dict[str, Any] | None = None) -> Flask:
     metrics.init_app(app)
     clientaddr.init_app(app)
     ratelimit.init_app(app)
-    # Who is acting (issue 31): every request's token and role (app/auth/), then every write's
-    # lock check (app/locks/), both before any route runs; every write's audit record after it.
-    from . import audit, auth, locks
-
+    # Who is acting (issue 31): every request's token and role (app/auth/) before any route runs (and
+    # before the lock check the locks family adds, app/locks/); every write's audit record after it.
     auth.init_app(app)
-    locks.init_app(app)
     audit.init_app(app)
     cors.init_app(app)
     errors.init_app(app)
     rosclient.init_app(app)
-    streams.init_app(app)
-    from . import fleet  # the fleet over Zenoh (issue 34, app/fleet/)
+    families = family.discover()
+    family.offer(app, families)   # what the families offer every mode (core/resources.py's Relayed)
+    # the fleet over Zenoh (issue 34, app/fleet/): a mode of the gateway, not a family
+    from . import fleet
 
     if fleet.init_app(app):  # the fleet gateway: its own routes, no ROS worker
         return app
     app.register_blueprint(root.bp)
     app.register_blueprint(discovery.bp)
-    app.register_blueprint(data.bp)
-    app.register_blueprint(subscriptions.bp)
-    from .routes import faults  # faults: /diagnostics as SOVD faults
-
-    app.register_blueprint(faults.bp)
-    from .routes import status  # GET .../status: ready or notReady (lifecycle)
-
-    app.register_blueprint(status.bp)
+    family.plug(app, families)   # the resource families, each by its FAMILY.init_app
     app.register_blueprint(unimplemented.bp)  # medkit's routes not served here: 501
     app.register_blueprint(ui.bp)  # the dashboard at /ui/ (app/ui/)
-    from .routes import operations  # operations: services and actions
-    app.register_blueprint(operations.bp)
-    # configurations: the nodes' ROS 2 parameters (app/routes/configurations.py)
-    from .routes import configurations
-    app.register_blueprint(configurations.bp)
-    from .routes import logs  # logs (issue 22)
-    app.register_blueprint(logs.bp)
-    # Triggers (app/routes/triggers.py, their streams app/triggerstreams.py).
-    from . import triggerstreams
-    from .routes import triggers
-
-    triggerstreams.init_app(app)
-    app.register_blueprint(triggers.bp)
-    from . import bulk_data  # bulk data (issue 32): medkit's /bulk-data routes (app/bulk_data/)
-
-    bulk_data.init_app(app)
     if cfg.debug_commands:  # test and bench routes; never in production
-        from .routes import debug
+        from .core import debug
 
         debug.init_app(app)
     return app

@@ -13,14 +13,15 @@ that only ``rosworker/`` creates ROS entities: tests/test_layout.py), each run a
 
 and, beside the gateway, :mod:`bench.echoworker`: the process behind the
 echo route (``--debug-commands``), the pure IPC hop the warm sample is compared with;
-:mod:`bench.rosmain` is what these ROS programs (and the tests' ``tests/support/rospub.py``)
-share; :mod:`bench.sseload` reads event streams (also for ``tests/reliability/test_streams.py``).
+:mod:`bench.sseload` reads event streams (also for ``tests/reliability/test_streams.py``).
 
 Helpers of its own:
 
 - :mod:`bench.load` — ``wrk`` (or the Python fallback) and the 1-connection latency client;
 - :mod:`bench.procs` — helper processes and CPU figures.
 
-From ``tests/`` it imports only the process harness it shares with the tests,
-``tests.support.procs`` and ``tests.support.gateway`` (tests/test_layout.py pins that).
+What it shares with the tests and the demo is common/harness/ (:mod:`common.harness`): the private
+ROS domain, processes, the gateway, ``rosmain`` (what every ROS program here starts and spins with),
+the ``/diagnostics`` and ``/rosout`` nodes, the simulated fleet.  It imports nothing from ``tests/``
+(tests/test_layout.py).
 """

@@ -23,8 +23,8 @@ import time
 
 import requests
 
-from tests.support.gateway import Gateway
-from tests.support.procs import poll_until
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 
 WARM = "/apps/temp_sensor/data/powertrain/engine/temperature"
 WRITE = "/apps/controller/data/body/lights/cmd"

@@ -22,7 +22,7 @@ import array
 import json
 import sys
 
-from bench import rosmain
+from common.harness import rosmain
 
 IMAGE_WIDTH, IMAGE_HEIGHT = 640, 480
 

@@ -26,10 +26,10 @@ from typing import Any
 
 import requests
 
-from bench.diagpub import DiagPub
 from bench.procs import measure_cpu, robot
-from tests.support.gateway import Gateway
-from tests.support.procs import Proc, free_port, poll_until, private_ros_domain
+from common.harness.diagpub import DiagPub
+from common.harness.gateway import Gateway
+from common.harness.procs import Proc, free_port, poll_until, private_ros_domain
 
 TOPICS = [f"/bench/rec/t{i}" for i in range(10)]
 IMAGE = "/bench/rec/image"

@@ -14,17 +14,14 @@ import json
 import sys
 import time
 
-from bench import rosmain
+from common.harness import rosmain
 
 
 def main() -> int:
     topics = json.loads(sys.argv[1])
-    import rclpy
-
-    from rosworker import msgtypes, qos
+    from rosworker.ros import msgtypes, qos
 
     node, stop = rosmain.start("bench_dds_floor", start_parameter_services=False, enable_rosout=False)
-    subs = []
     deadline = time.monotonic() + 60
     for topic in topics:
         infos = rosmain.wait_for_publishers(node, topic, deadline - time.monotonic(), stop)
@@ -32,15 +29,8 @@ def main() -> int:
             print(f"no publisher on {topic}", flush=True)
             return 1
         cls = msgtypes.load_type(infos[0].topic_type)
-        subs.append(node.create_subscription(cls, topic, lambda _m: None, qos.match_qos(infos)))
-    print("READY", flush=True)
-    while not stop.wait(0.5):
-        pass
-    for sub in subs:
-        node.destroy_subscription(sub)
-    node.destroy_node()
-    rclpy.try_shutdown()
-    return 0
+        node.create_subscription(cls, topic, lambda _m: None, qos.match_qos(infos))
+    return rosmain.hold(node, stop)
 
 
 if __name__ == "__main__":

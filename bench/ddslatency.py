@@ -18,12 +18,12 @@ import sys
 import threading
 import time
 
-from bench import rosmain
+from common.harness import rosmain
 
 
 def main() -> int:
     spec = json.loads(sys.argv[1])
-    from rosworker import msgtypes, qos
+    from rosworker.ros import msgtypes, qos
 
     node, stop = rosmain.start("bench_dds_latency", start_parameter_services=False, enable_rosout=False)
     infos = rosmain.wait_for_publishers(node, spec["topic"], 60, stop)

@@ -2,7 +2,7 @@
 
     python -m bench.echoworker ENDPOINT
 
-It binds ``ENDPOINT`` (``app/routes/debug.py``: ``ipc://<runtime_dir>/bench-echo.sock``)
+It binds ``ENDPOINT`` (``app/core/debug.py``: ``ipc://<runtime_dir>/bench-echo.sock``)
 and answers each request of ``ipc/PROTOCOL.md``'s envelope with
 ``{"v", "id", "ok": true, "result": <the request's args>}``, on one thread, with
 no work in between: what is left of a round trip through the gateway's HTTP

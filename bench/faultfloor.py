@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import sys
 
-from bench import rosmain
+from common.harness import rosmain
 
 
 def main() -> int:

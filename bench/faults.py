@@ -24,10 +24,10 @@ from typing import Any
 import psutil
 import requests
 
-from bench.diagpub import DiagPub
 from bench.procs import measure_cpu
-from tests.support.gateway import Gateway
-from tests.support.procs import Proc, poll_until, private_ros_domain
+from common.harness.diagpub import DiagPub
+from common.harness.gateway import Gateway
+from common.harness.procs import Proc, poll_until, private_ros_domain
 
 RATE_HZ = 10
 STATUSES = 50

@@ -42,11 +42,11 @@ from typing import Any
 import psutil
 import requests
 
-from bench.diagpub import DiagPub
-from bench.fleetsim import Router, SimFleet, record
 from bench.procs import cpu_seconds
-from tests.support.gateway import FleetGateway, Gateway
-from tests.support.procs import Proc, poll_until, private_ros_domain
+from common.harness.diagpub import DiagPub
+from common.harness.fleetsim import Router, SimFleet, record
+from common.harness.gateway import FleetGateway, Gateway
+from common.harness.procs import Proc, poll_until, private_ros_domain
 
 TOKEN = "bench-fleet-token-0123456789"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}

@@ -1,7 +1,7 @@
 """``make bench``'s logs row (issue 22): the ROS worker's CPU with /rosout at 1 kHz, beside its DDS floor.
 
 A node (``bench/roslogger.py``) publishes 1,000 /rosout lines a second;
-the ROS worker takes them into its ring buffers (``rosworker/logs.py``) while
+the ROS worker takes them into its ring buffers (``rosworker/logs/book.py``) while
 ``bench/rosoutfloor.py`` holds the same subscription and never reads it.  Both
 are measured over the same window, and over one as long before the lines
 start (each process's baseline: the worker also polls the graph).
@@ -14,7 +14,7 @@ import time
 
 import psutil
 
-from bench.roslogger import LoggerNode
+from common.harness.roslogger import LoggerNode
 
 from .procs import measure_cpu, ros_helper
 

@@ -20,7 +20,7 @@ import random
 import sys
 import time
 
-from bench import rosmain
+from common.harness import rosmain
 
 
 def main() -> int:
@@ -29,7 +29,7 @@ def main() -> int:
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
-    from rosworker import msgtypes, qos
+    from rosworker.ros import msgtypes, qos
 
     node, stop = rosmain.start("bench_old_sampler", start_parameter_services=False, enable_rosout=False)
     executor = SingleThreadedExecutor()

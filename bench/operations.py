@@ -16,7 +16,7 @@ import time
 
 import requests
 
-from tests.support.procs import Proc, poll_until
+from common.harness.procs import Proc, poll_until
 
 PATH = "/apps/calibration/operations/calibrate/executions"
 SERVICE = "/arm/calibrate"

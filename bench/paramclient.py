@@ -12,7 +12,7 @@ import json
 import sys
 import time
 
-from bench import rosmain
+from common.harness import rosmain
 
 
 def main() -> None:

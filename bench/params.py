@@ -18,8 +18,8 @@ from typing import Any
 
 import requests
 
-from tests.support.gateway import Gateway
-from tests.support.procs import Proc, poll_until
+from common.harness.gateway import Gateway
+from common.harness.procs import Proc, poll_until
 
 NODE, APP, NAME = "/powertrain/engine/temp_sensor", "temp_sensor", "filter_window"
 TARGET_MS = 1.0  # p50 ≤ bare + 1 ms

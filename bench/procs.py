@@ -1,9 +1,8 @@
-"""The bench's own processes and CPU figures; the rest comes from the tests' helpers.
+"""The bench's own processes and CPU figures; the rest comes from the harness it shares with the tests.
 
-The private ROS domain (:func:`tests.support.procs.private_ros_domain`), the
-gateway (:class:`tests.support.gateway.Gateway`, with its output to a log file)
-and process handling (:class:`tests.support.procs.Proc`) are shared with the
-test suite.  Here:
+The private ROS domain (:func:`common.harness.procs.private_ros_domain`), the
+gateway (:class:`common.harness.gateway.Gateway`, with its output to a log file)
+and process handling (:class:`common.harness.procs.Proc`) are common/harness/'s.  Here:
 
 - :func:`ros_helper` starts ``python -m bench.<module>`` and waits for ``READY``;
   :func:`robot` is that for the publishers of ``bench/benchpub.py``;
@@ -18,7 +17,7 @@ import time
 
 import psutil
 
-from tests.support.procs import Proc
+from common.harness.procs import Proc
 
 
 def ros_helper(module: str, *args: str, name: str | None = None, timeout: float = 60.0) -> Proc:

@@ -69,10 +69,10 @@ from typing import Any
 import psutil
 import requests
 
-from app.routes.debug import echo_endpoint
+from app.core.debug import echo_endpoint
+from common.harness.gateway import Gateway
+from common.harness.procs import Proc, poll_until, private_ros_domain
 from ipc.client import RosWorkerClient
-from tests.support.gateway import Gateway
-from tests.support.procs import Proc, poll_until, private_ros_domain
 
 from . import load as loadgen
 from . import operations, streams

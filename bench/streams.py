@@ -31,8 +31,8 @@ from typing import Any
 
 import requests
 
-from tests.support.gateway import Gateway
-from tests.support.procs import Proc
+from common.harness.gateway import Gateway
+from common.harness.procs import Proc
 
 from .procs import cpu_seconds, robot
 

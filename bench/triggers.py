@@ -77,7 +77,7 @@ def reference(spec: dict) -> None:
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Temperature
 
-    from bench import rosmain
+    from common.harness import rosmain
 
     node, stop = rosmain.start("bench_trigger_reference")
     lat: list[float] = []
@@ -100,8 +100,8 @@ def reference(spec: dict) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from tests.support.gateway import Gateway
-    from tests.support.procs import Proc, poll_until
+    from common.harness.gateway import Gateway
+    from common.harness.procs import Proc, poll_until
 
     parser = argparse.ArgumentParser(prog="python -m bench.triggers")
     parser.add_argument("--seconds", type=float, default=20.0)

@@ -5,7 +5,8 @@
 - :func:`lock_pidfile`: the exclusive ``flock`` that makes one supervisor (``supervisor.lock``)
   and one ROS worker (``rosworker.lock``) per runtime directory; the file holds the owner's pid.
 - :func:`write_atomic`: a small file of the runtime directory replaced in one step, 0600
-  (``supervisor.json``, the restart state), so a reader never sees half of it.
+  (``supervisor.json``, the restart state), so a reader never sees half of it; :func:`remove`:
+  a file deleted, a missing one being no error.
 - :class:`PerProcess`: a value made on first use in each process, forgotten in a child
   after ``fork()`` (``os.register_at_fork``), so nobody uses the parent's sockets, maps or
   events: gunicorn forks the HTTP workers from a master that may already hold some.
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import fcntl
 import functools
+import logging
 import os
 import threading
 import weakref
@@ -82,6 +84,16 @@ def write_atomic(path: str, data: bytes) -> None:
         os.fchmod(fd, 0o600)  # an older copy may have been made with other bits, whatever the umask
         fh.write(data)
     os.replace(tmp, path)
+
+
+def remove(path: str, log: logging.Logger, what: str) -> None:
+    """Delete ``path``; gone already is fine, any other failure is logged (a warning: ``what path: error``)."""
+    try:
+        os.unlink(path)
+    except FileNotFoundError:
+        pass
+    except OSError as exc:
+        log.warning("%s %s: %s", what, path, exc)
 
 
 _instances: weakref.WeakSet[PerProcess] = weakref.WeakSet()

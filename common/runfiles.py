@@ -1,7 +1,7 @@
 """The files the supervisor keeps in the runtime directory for the HTTP side (beside the IPC sockets).
 
 - ``metrics/`` (0700): prometheus_client's per-process files of the HTTP
-  workers (``app/metrics.py``).  Emptied by :func:`prepare` at start-up, as
+  workers (``app/core/metrics.py``).  Emptied by :func:`prepare` at start-up, as
   prometheus_client's multiprocess mode prescribes; gunicorn is started with
   ``PROMETHEUS_MULTIPROC_DIR`` pointing at it.
 - ``ratelimit.buckets``: the token buckets all HTTP workers share

@@ -31,7 +31,7 @@ ENV_PREFIX = "SOVD_"
 # (absent at the first boot).  A restarted worker waits a while for the runtime dir's lock
 # (its predecessor may still be dying).
 RESTART_ENV = "SOVD_WORKER_RESTART"
-ACCESS_LOG_RATE = 100.0     # access lines per second, all HTTP workers together (app/accesslog.py)
+ACCESS_LOG_RATE = 100.0     # access lines per second, all HTTP workers together (app/core/accesslog.py)
 ACCESS_LOG_BURST = 1000     # access lines at once before the rate applies
 RATE_MAX = 1_000_000.0      # bounds of a RATE/BURST setting
 BURST_MAX = 1_000_000
@@ -192,7 +192,7 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("max_parameter_clients", int, 64, "LRU cap on nodes with pooled parameter clients", 1, 4096),
     Setting("parameter_client_idle_s", float, 300.0, "seconds a node's unused parameter clients are kept",
             1, 86400),
-    # --- faults: /diagnostics as SOVD faults (rosworker/faults.py, README "Faults") ---
+    # --- faults: /diagnostics as SOVD faults (rosworker/faults/manager.py, README "Faults") ---
     Setting("state_dir", str, "", "directory of the store faults.db: faults and triggers (default: "
             "$STATE_DIRECTORY, else $XDG_STATE_HOME/sovd-gateway, else ~/.local/state/sovd-gateway)"),
     Setting("fault_confirm_count", int, 3, "failing reports that confirm a fault", 1, 10000),
@@ -581,7 +581,7 @@ class Rate:
     """A token bucket: ``rate`` tokens per second, at most ``burst`` at once.
 
     The one refill rule of the gateway's buckets: the rate limiter's (``app/ratelimit.py``)
-    and the access log's (``app/accesslog.py``).
+    and the access log's (``app/core/accesslog.py``).
     """
 
     rate: float
@@ -663,3 +663,11 @@ def ensure_runtime_dir(path: str) -> str:
     if st.st_mode & 0o077:
         os.chmod(path, 0o700)
     return path
+
+
+def restart_attempt(environ: dict | os._Environ) -> int:
+    """Which restart a ROS worker is (0: the first boot), as the supervisor said (``RESTART_ENV``)."""
+    try:
+        return max(0, int(environ.get(RESTART_ENV, "0")))
+    except ValueError:
+        return 0

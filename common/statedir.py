@@ -1,8 +1,8 @@
 """The state directory's files: private to the service user (a directory 0700, files 0600).
 
 The gateway keeps two SQLite stores there: ``faults.db`` (the ROS worker's: faults, their events
-and the triggers; ``rosworker/faultstore.py``) and ``access.db`` (the HTTP workers': the audit
-trail and the revoked tokens; ``app/accessdb.py``).  Freeze frames hold robot data and the audit
+and the triggers; ``rosworker/core/store.py``) and ``access.db`` (the HTTP workers': the audit
+trail and the revoked tokens; ``app/core/accessdb.py``).  Freeze frames hold robot data and the audit
 trail says who did what: neither is for other users of the machine.
 """
 

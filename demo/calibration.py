@@ -18,6 +18,8 @@ from rclpy.task import Future
 from std_srvs.srv import Trigger
 from test_msgs.action import Fibonacci
 
+from common.harness import fibonacci
+
 STEP_S = 1.0
 MAX_ORDER = 46   # fib(47) does not fit the int32 of Fibonacci's sequence
 
@@ -46,22 +48,8 @@ def build() -> Node:
         return done
 
     async def execute(goal_handle):
-        order = goal_handle.request.order
-        sequence = [0, 1]
-        feedback = Fibonacci.Feedback()
-        for i in range(1, max(1, order)):
-            await pause(STEP_S)
-            if goal_handle.is_cancel_requested:
-                goal_handle.canceled()
-                return Fibonacci.Result(sequence=sequence)
-            if order > MAX_ORDER:
-                goal_handle.abort()
-                return Fibonacci.Result()
-            sequence.append(sequence[i] + sequence[i - 1])
-            feedback.sequence = sequence
-            goal_handle.publish_feedback(feedback)
-        goal_handle.succeed()
-        return Fibonacci.Result(sequence=sequence)
+        return await fibonacci.execute(goal_handle, Fibonacci, lambda: pause(STEP_S),
+                                       aborts=lambda order: order > MAX_ORDER)
 
     node._long_calibration = ActionServer(   # kept with the node
         node, Fibonacci, "long_calibration", execute_callback=execute,

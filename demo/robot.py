@@ -33,18 +33,16 @@ The camera's picture is a test pattern: red grows with x (4 per column), green w
 from __future__ import annotations
 
 import math
-import signal
-import threading
 import time
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from nav_msgs.msg import Odometry
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import BatteryState, FluidPressure, Image, Temperature
 from std_msgs.msg import Bool, String
+
+from common.harness import rosmain
 
 CAMERA_WIDTH, CAMERA_HEIGHT = 64, 48
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -208,27 +206,14 @@ def test_pattern(frame: int) -> bytes:
 
 
 def main() -> None:
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    rclpy.init(signal_handler_options=rclpy.SignalHandlerOptions.NO)
+    stop = rosmain.init()
     nodes = build()
     # operations: the arm's calibrate service and long_calibration action
     from demo import calibration
 
     nodes.append(calibration.build())
-    executor = SingleThreadedExecutor()
-    for node in nodes:
-        executor.add_node(node)
     print("demo robot running: " + ", ".join(n.get_fully_qualified_name() for n in nodes), flush=True)
-    try:
-        while not stop.is_set():
-            executor.spin_once(timeout_sec=0.1)
-    finally:
-        for node in nodes:
-            executor.remove_node(node)
-            node.destroy_node()
-        rclpy.try_shutdown()
+    rosmain.spin(nodes[0], stop, nodes[1:], timeout=0.1)
 
 
 if __name__ == "__main__":

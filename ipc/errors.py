@@ -5,14 +5,14 @@ receiving side rebuilds an :class:`IpcError` only from the codes in
 :data:`CODES`; anything else becomes ``internal``.  Tracebacks never travel:
 they go to the ROS worker's log.  What a code means to an HTTP client (status,
 SOVD ``error_code``, ``vendor_code``, ``Retry-After``) is the HTTP side's
-business: ``app/errors.py``.
+business: ``app/core/errors.py``.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-# Every code an error on the wire may carry (the HTTP side's answer to each: app/errors.py).
+# Every code an error on the wire may carry (the HTTP side's answer to each: app/core/errors.py).
 CODES: frozenset[str] = frozenset({
     "bad-request",
     "invalid-topic",
@@ -47,16 +47,16 @@ CODES: frozenset[str] = frozenset({
     "not-responding",
     "no-such-execution",
     "goals-full",
-    # configurations (rosworker/parameters.py)
+    # configurations (rosworker/configurations/clients.py)
     "node-unavailable",
     "no-such-parameter",
     "no-default",
     "parameter-read-only",
     "invalid-parameter-value",
     "parameter-failed",
-    # faults (rosworker/faults.py)
+    # faults (rosworker/faults/manager.py)
     "no-such-fault",
-    # triggers (rosworker/triggers.py)
+    # triggers (rosworker/triggers/registry.py)
     "no-such-trigger",
     "triggers-full",
     "lock-conflict", "lock-not-found", "lock-not-owner", "locks-full",  # locks (rosworker/locks/)

@@ -1,4 +1,4 @@
-"""The events channel: cyclic-subscription frames from the ROS worker to the HTTP workers.
+"""The events channel: what the ROS worker streams to the HTTP workers (cyclic subscriptions, faults, triggers).
 
 Transport: a ZeroMQ XPUB socket that the ROS worker binds on
 ``ipc://<runtime_dir>/rosworker-events.sock`` (0600, like the others), and one
@@ -19,7 +19,7 @@ streams watch them.  The wire format is documented in ``ipc/PROTOCOL.md``.
   subscription an HTTP worker makes (the XPUB is verbose: the ROS thread reads
   each one).  The XPUB applied the subscription before handing it over, so
   whoever receives the confirmation receives everything of that prefix sent
-  after it: an event stream opens only then (``app/channel.py``).  A reader
+  after it: an event stream opens only then (``app/sse/channel.py``).  A reader
   passes over one-frame messages it does not wait for.
 """
 
@@ -33,7 +33,7 @@ INTERVALS = {"fast": 0.05, "normal": 0.2, "slow": 0.5}
 CONTROL_KEY = b"c|"
 HEARTBEAT_KEY = b"h|"
 DATA_PREFIX = b"d|"
-# faults (rosworker/faults.py): ``f|`` + msgpack {"id", "event_type", "fault", "timestamp"}, one per event
+# faults (rosworker/faults/manager.py): ``f|`` + msgpack {"id", "event_type", "fault", "timestamp"}, one per event
 FAULT_KEY = b"f|"
 # Per subscriber: frames queued for a slow HTTP worker beyond this are dropped by ZeroMQ,
 # never buffered without bound (a worker that keeps up holds a handful).
@@ -55,7 +55,7 @@ def data_key(interval: str, mode: str, topic: str) -> bytes:
     return f"d|{interval}|{mode}|{topic}|".encode()
 
 
-# Triggers (rosworker/triggers.py): ``t|e|<id>|`` + msgpack {"ts", "seq", "last"?, "error"?} + the
+# Triggers (rosworker/triggers/registry.py): ``t|e|<id>|`` + msgpack {"ts", "seq", "last"?, "error"?} + the
 # message's JSON, sent only when a trigger fires; ``t|c|<id>|`` + msgpack {"event", "id"} when one
 # is deleted or expires.  HTTP workers subscribe to ``t|c|`` and to the events of their open streams.
 TRIGGER_CONTROL_PREFIX = b"t|c|"

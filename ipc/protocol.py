@@ -20,6 +20,8 @@ from typing import Any
 
 import msgpack
 
+from . import counters
+
 VERSION = 1
 SOCKET_NAME = "rosworker.sock"               # work: every command, served by the ROS thread
 CONTROL_SOCKET_NAME = "rosworker-ctl.sock"    # control: ping and stats, never behind ROS work
@@ -31,37 +33,15 @@ BYTES_MODES = ("array", "base64")
 # An HTTP request's id (X-Request-Id) as it may cross the wire and reach a log line.
 REQUEST_ID = re.compile(r"^[A-Za-z0-9._-]{1,128}$")
 
-COMMANDS = (
-    "ping", "stats", "graph", "sample", "subscribe", "evict", "publish", "type_info", "pool",
-    "sub_create", "sub_list", "sub_get", "sub_update", "sub_delete",
-    "debug_sleep",
-    # operations: services and actions (rosworker/operations.py)
-    "op_list", "op_call", "op_goal", "op_goals", "op_exec", "op_cancel",
-    # configurations (rosworker/parameters.py)
-    "param_list", "param_get", "param_set", "param_reset", "param_reset_all",
-    # faults (rosworker/faults.py)
-    "fault_list", "fault_get", "fault_clear", "fault_events",
-    "logs", "log_config_get", "log_config_set",  # logs (issue 22): rosworker/logs.py
-    "lifecycle_state",  # GET .../status: a managed node's state (rosworker/lifecycle.py)
-)
-# Triggers (rosworker/triggers.py).
-COMMANDS += ("trig_create", "trig_list", "trig_get", "trig_update", "trig_delete", "trig_open")
-# Locks (rosworker/locks/).
-COMMANDS += ("lock_acquire", "lock_extend", "lock_release", "lock_list")
-# Bulk data: fault recordings (rosworker/bulk_data/); bulk_debug_pause only with debug_commands.
-COMMANDS += ("bulk_rosbags", "bulk_rosbag_get", "bulk_debug_pause")
+# Every command (``ipc/counters.py``'s table: who serves it, and whether it is a write).
+COMMANDS = tuple(c.name for c in counters.COMMANDS)
 # Commands answered from counters by the control thread, without queueing behind ROS work;
 # clients send them to the control socket.
-IMMEDIATE = ("ping", "stats")
+IMMEDIATE = tuple(c.name for c in counters.COMMANDS if c.family == "control")
 # Commands that change something on the robot or in the gateway.  Once one was sent, an answer
 # lost with the ROS worker leaves its outcome unknown (``outcome-unknown``, not ``unavailable``):
 # a client must look before it tries again (a service call is not idempotent).
-WRITES = frozenset({
-    "publish", "op_call", "op_goal", "op_cancel", "param_set", "param_reset", "param_reset_all",
-    "fault_clear", "log_config_set", "sub_create", "sub_update", "sub_delete",
-    "trig_create", "trig_update", "trig_delete",
-    "lock_acquire", "lock_extend", "lock_release",
-})
+WRITES = frozenset(c.name for c in counters.COMMANDS if c.write)
 
 
 def endpoint(runtime_dir: str) -> str:

@@ -3,7 +3,7 @@
 The ROS worker serves two ROUTER sockets in its runtime directory:
 
 - ``rosworker.sock`` (work): served by the ROS thread itself
-  (``rosworker/executor.py``), which reads, queues, runs and answers every
+  (``rosworker/core/executor.py``), which reads, queues, runs and answers every
   command there;
 - ``rosworker-ctl.sock`` (control): served by :class:`ControlServer`, a thread
   that never touches rclpy.  It answers ``ping`` and ``stats`` from counters,
@@ -56,12 +56,26 @@ class RuntimeLock:
         self.path = os.path.join(runtime_dir, protocol.LOCK_NAME)
         self._fh = None
 
-    def acquire(self) -> None:
-        try:
-            self._fh = lock_pidfile(self.path)
-        except PidfileHeld as exc:
-            raise LockHeld(f"another ROS worker (pid {exc.holder or 'another process'}) already serves "
-                           f"{os.path.dirname(self.path)}; refusing to take its socket") from None
+    def acquire(self, wait: float = 0.0, poll: float = 0.05,
+                waiting: Callable[[LockHeld], None] | None = None) -> float:
+        """Take the lock, waiting up to ``wait`` s for its holder to go (``waiting(exc)`` once when it
+        starts to wait); the seconds waited, or :class:`LockHeld` (saying how long) past ``wait``."""
+        started = time.monotonic()
+        told = False
+        while True:
+            try:
+                self._fh = lock_pidfile(self.path)
+                return time.monotonic() - started
+            except PidfileHeld as held:
+                exc = LockHeld(f"another ROS worker (pid {held.holder or 'another process'}) already serves "
+                               f"{os.path.dirname(self.path)}; refusing to take its socket")
+            waited = time.monotonic() - started
+            if waited >= wait:
+                raise LockHeld(f"{exc} (waited {waited:.1f} s)" if wait else str(exc))
+            if waiting is not None and not told:
+                told = True
+                waiting(exc)
+            time.sleep(min(poll, wait - waited))
 
     def release(self) -> None:
         if self._fh is not None:

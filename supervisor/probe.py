@@ -75,7 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("--count", type=int, default=0, metavar="N", help="stop after N frames")
             p.add_argument("--duration", type=int, default=600, metavar="S",
                            help="stop after S seconds (default 600; at most max_stream_duration)")
-    # faults (rosworker/faults.py): the active faults, or every fault kept
+    # faults (rosworker/faults/manager.py): the active faults, or every fault kept
     p = sub.add_parser("faults", help="the active faults (--all: also healed and cleared ones)")
     p.add_argument("--all", action="store_true", dest="all_faults", help="every fault the store keeps")
     _common(p, suppress=True)

@@ -10,7 +10,7 @@ import os
 
 import pytest
 
-from tests.support.procs import private_ros_domain
+from common.harness.procs import private_ros_domain
 
 private_ros_domain()
 
@@ -22,9 +22,9 @@ def ros_domain() -> int:
 
 @pytest.fixture
 def diag():
-    """``diag(node, namespace="/", rate=10)``: a real ``/diagnostics`` publisher (bench/diagpub.py), once the
+    """``diag(node, namespace="/", rate=10)``: a real ``/diagnostics`` publisher (common/harness/diagpub.py), once the
     gateway's subscription has matched it (no report is lost to discovery); stopped after the test."""
-    from bench.diagpub import DiagPub
+    from common.harness.diagpub import DiagPub
 
     started: list[DiagPub] = []
 
@@ -36,6 +36,29 @@ def diag():
     yield make
     for pub in started:
         pub.stop()
+
+
+@pytest.fixture(scope="module")
+def gateway():
+    """``gateway(*flags, exit_code=None, **options)``: a real gateway (common.harness.gateway.Gateway) started
+    with those flags and options (``env``, ``timeout`` ...), once a module: the same flags again give the same
+    gateway.  Every gateway it started is stopped at the module's end (in reverse), and one given an
+    ``exit_code`` must exit with it.  A module's ``gw`` fixture asks for its own: ``gateway("--allow-publish")``
+    (after the fixtures of the nodes it must see, so that those start first)."""
+    from common.harness.gateway import Gateway
+
+    started: dict[str, tuple[Gateway, int | None]] = {}  # repr((flags, options)) -> (gateway, exit code)
+
+    def make(*flags: str, exit_code: int | None = None, **options) -> Gateway:
+        key = repr((flags, sorted(options.items())))
+        if key not in started:
+            started[key] = (Gateway(*flags, **options), exit_code)
+        return started[key][0]
+
+    yield make
+    codes = {key: (gw.stop(), exit_code) for key, (gw, exit_code) in reversed(started.items())}
+    wrong = {key: code for key, (code, expected) in codes.items() if expected is not None and code != expected}
+    assert not wrong, f"gateways that exited with another code than expected: {wrong}"
 
 
 @pytest.fixture

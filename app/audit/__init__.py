@@ -1,5 +1,5 @@
 """The audit trail: who tried to change what, and what came of it (``trail.py``; the store is
-``app/accessdb.py``).
+``app/core/accessdb.py``).
 
 :func:`init_app` records every write (``POST``, ``PUT``, ``DELETE``, ``PATCH``) that matched a
 route, once its answer is made (an ``after_request`` hook: refusals by the role check, a lock or a
@@ -29,11 +29,12 @@ from typing import Any
 import orjson
 from flask import Blueprint, Flask, Response, current_app, request
 
-from .. import accessdb, auth, blocking, requestid
-from .. import target as targets
-from ..entities import API_BASE
-from ..errors import ApiError
-from ..routes.common import json_response
+from .. import auth
+from ..core import accessdb, blocking, requestid
+from ..core import target as targets
+from ..core.common import json_response
+from ..core.entities import API_BASE
+from ..core.errors import ApiError
 from .trail import AuditTrail
 
 log = logging.getLogger("sovd.http.audit")

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 from typing import Any
 
-from .. import openapi as oa
+from ..openapi import build as oa
 from . import LIMIT_MAX
 
 TAG = {"name": "Audit", "description": "Who tried to change what, and what came of it (admin)"}
 NULLABLE = {"type": ["string", "null"]}
 SCHEMAS: dict[str, Any] = {
-    "AuditRecord": oa._obj(
+    "AuditRecord": oa.obj(
         ["id", "timestamp", "ts_ns", "client_id", "address", "role", "method", "resource", "family", "collection",
          "entity_id", "request_id", "status", "error_code"],
         id=oa.INT, timestamp={"type": "string", "format": "date-time"}, ts_ns=oa.INT,
@@ -19,7 +19,7 @@ SCHEMAS: dict[str, Any] = {
         address=oa.STR, role=NULLABLE, method={"enum": ["POST", "PUT", "DELETE", "PATCH"]}, resource=oa.STR,
         family=oa.STR, collection=NULLABLE, entity_id=NULLABLE, request_id=NULLABLE, status=oa.INT,
         error_code=NULLABLE),
-    "AuditList": oa._obj(["items"], items={"type": "array", "items": oa.ref("AuditRecord")},
+    "AuditList": oa.obj(["items"], items={"type": "array", "items": oa.ref("AuditRecord")},
                          next_before={**oa.INT, "description": "`before` for the next page, when there may be one"}),
 }
 
@@ -33,7 +33,7 @@ def paths() -> dict[str, Any]:
         ("since", "Unix seconds, inclusive"), ("until", "Unix seconds, exclusive"),
         ("limit", f"records per page, 1 to {LIMIT_MAX} (default 100)"),
         ("before", "the next page: records older than this id"))]
-    return {"/x-medkit-audit": {"get": oa._op(
-        "listAuditRecords", "Audit", "The audit trail, newest first, filtered and paged", oa._ok("AuditList"),
+    return {"/x-medkit-audit": {"get": oa.op(
+        "listAuditRecords", "Audit", "The audit trail, newest first, filtered and paged", oa.ok("AuditList"),
         ("400", "A bad filter or paging value (`invalid-parameter`)"),
         ("404", "The audit trail is off (audit_max_records 0)"), parameters=query)}}

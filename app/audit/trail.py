@@ -1,6 +1,6 @@
 """The audit trail: one record per write attempt that reached a route, kept in ``access.db``.
 
-A record (``app/accessdb.py``'s ``audit`` table): when (``ts_ns``), who (the token's client id,
+A record (``app/core/accessdb.py``'s ``audit`` table): when (``ts_ns``), who (the token's client id,
 else nobody; and always the client's address, the real one behind nginx), with which role, what
 (the method, the path without its query, the route family, the entity, the request id) and the
 outcome (the status and the answer's error code).  A write refused by the role check (401, 403),
@@ -30,7 +30,7 @@ import sqlite3
 import time
 from typing import Any
 
-from .. import accessdb, blocking
+from ..core import accessdb, blocking
 
 log = logging.getLogger("sovd.http.audit")
 

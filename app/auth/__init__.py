@@ -36,9 +36,9 @@ from flask import Flask, Response, current_app, request
 
 from common.generations import Generations
 
-from .. import accessdb
-from .. import target as targets
-from ..errors import HTTP_CODES
+from ..core import accessdb
+from ..core import target as targets
+from ..core.errors import HTTP_CODES
 from . import roles
 from .failures import FailureLimit, TooManyFailures
 from .revocations import Revocations
@@ -201,7 +201,7 @@ _decisions: dict[tuple[str, str, str], bool] = {}
 def _allowed(req, role: str) -> bool:
     """The role table's answer for this request.  For a matched route it depends only on the role, the
     method and the route's role path (its collection, every other variable one segment, bulk data's
-    at most three: ``app/target.py``), so it is remembered by those (a bounded set); an unmatched
+    at most three: ``app/core/target.py``), so it is remembered by those (a bounded set); an unmatched
     path is matched each time."""
     method = "GET" if req.method == "HEAD" else req.method
     role_path = targets.of(req).role_path

@@ -8,7 +8,7 @@ from __future__ import annotations
 from copy import deepcopy
 from typing import Any
 
-from .. import openapi as oa
+from ..openapi import build as oa
 from .roles import ACTIONS
 
 TAG = {"name": "Authentication", "description": "OAuth2 client credentials and JWTs (medkit's four roles)"}
@@ -24,19 +24,19 @@ _STALE = (" or the token is wrong (`forbidden`)", ", a wrong API token (`forbidd
           "(`forbidden`)")
 
 SCHEMAS: dict[str, Any] = {
-    "AuthCredentials": {**oa._obj(["grant_type"], grant_type={"enum": ["client_credentials", "refresh_token"]},
+    "AuthCredentials": {**oa.obj(["grant_type"], grant_type={"enum": ["client_credentials", "refresh_token"]},
                                   client_id=oa.STR, client_secret=oa.STR, refresh_token=oa.STR, scope=oa.STR),
                         "description": "medkit's AuthorizeRequest, as JSON or application/x-www-form-urlencoded "
                                        "(medkit's spec names username and password; its code reads these)"},
-    "AuthTokenResponse": oa._obj(["access_token", "token_type", "expires_in", "refresh_token", "scope"],
+    "AuthTokenResponse": oa.obj(["access_token", "token_type", "expires_in", "refresh_token", "scope"],
                                  access_token=oa.STR, token_type={"const": "Bearer"}, expires_in=oa.INT,
                                  refresh_token=oa.STR, scope={"enum": ["viewer", "operator", "configurator", "admin"]}),
-    "AuthRevokeRequest": oa._obj(["token"], token=oa.STR),
-    "AuthRevokeResponse": oa._obj(["status"], status={"const": "revoked"}),
-    "AuthWhoAmI": oa._obj(["client_id", "role", "expires_at", "require_auth_for", "may"], client_id=oa.STR,
+    "AuthRevokeRequest": oa.obj(["token"], token=oa.STR),
+    "AuthRevokeResponse": oa.obj(["status"], status={"const": "revoked"}),
+    "AuthWhoAmI": oa.obj(["client_id", "role", "expires_at", "require_auth_for", "may"], client_id=oa.STR,
                           role=oa.STR, expires_at={"type": ["integer", "null"]},
                           require_auth_for={"enum": ["none", "write", "all"]},
-                          may=oa._obj([key for key, *_ in ACTIONS], **{key: {"type": "boolean"}
+                          may=oa.obj([key for key, *_ in ACTIONS], **{key: {"type": "boolean"}
                                                                        for key, *_ in ACTIONS})),
 }
 
@@ -44,7 +44,7 @@ SCHEMAS: dict[str, Any] = {
 def _oauth(description: str) -> dict[str, Any]:
     """An error of the auth routes: medkit's OAuth2 body (``error``, ``error_description``), which also
     holds the gateway's ``error_code`` and ``message``, so it is a GenericError too."""
-    return oa._error(description + "; the body is OAuth2's (`error`, `error_description`) with `error_code` "
+    return oa.error(description + "; the body is OAuth2's (`error`, `error_description`) with `error_code` "
                                    "and `message` beside it")
 
 
@@ -57,19 +57,19 @@ def paths() -> dict[str, Any]:
                  "(`invalid_request`, `unsupported_grant_type`)")
 
     def grant(op_id: str, summary: str, refused: str) -> dict[str, Any]:
-        op = oa._op(op_id, "Authentication", summary, oa._ok("AuthTokenResponse"), "408", "413", requestBody=body)
+        op = oa.op(op_id, "Authentication", summary, oa.ok("AuthTokenResponse"), "408", "413", requestBody=body)
         op["responses"].update({"400": bad, "401": _oauth(refused), "404": off, "429": _oauth(
             "Too many failed authorizations from this address (`rate-limit-exceeded`, OAuth2 `access_denied`); "
             "retry after `Retry-After` seconds")})
         return op
 
-    revoke = oa._op("revokeToken", "Authentication", "Revoke a token (answered the same whether it was good)",
-                    oa._ok("AuthRevokeResponse"), "408", "413", requestBody={"required": True, "content": {
+    revoke = oa.op("revokeToken", "Authentication", "Revoke a token (answered the same whether it was good)",
+                    oa.ok("AuthRevokeResponse"), "408", "413", requestBody={"required": True, "content": {
                         "application/json": {"schema": oa.ref("AuthRevokeRequest")}}})
     revoke["responses"].update({"400": _oauth("No `token`, or a body that is not JSON (`invalid_request`)"),
                                 "404": off, "500": _oauth("The revocation could not be stored (`server_error`)")})
-    whoami = oa._op("getAuthWhoAmI", "Authentication", "Who the bearer token is, and what its role may do",
-                    oa._ok("AuthWhoAmI"), security=[{"bearerAuth": []}])
+    whoami = oa.op("getAuthWhoAmI", "Authentication", "Who the bearer token is, and what its role may do",
+                    oa.ok("AuthWhoAmI"), security=[{"bearerAuth": []}])
     whoami["responses"].update({"401": _oauth("No token, or a bad one (`invalid_token`)"), "404": off})
     return {
         "/auth/authorize": {"post": grant("authorize", "OAuth2 client credentials: an access and a refresh token",
@@ -90,10 +90,10 @@ def amend(schemas: dict[str, Any]) -> None:
                                                 "/auth routes): invalid_token, insufficient_scope, invalid_client …"},
         error_description={"type": "string", "description": "OAuth2's text of it (the same as `message`)"})
     overview = schemas["RootOverview"]
-    overview["properties"]["auth"] = oa._obj(["enabled", "algorithm", "require_auth_for"], enabled={"const": True},
+    overview["properties"]["auth"] = oa.obj(["enabled", "algorithm", "require_auth_for"], enabled={"const": True},
                                              algorithm={"enum": ["HS256", "RS256"]},
                                              require_auth_for={"enum": ["none", "write", "all"]})
-    overview["properties"]["tls"] = oa._obj(["enabled", "min_version"], enabled={"const": True},
+    overview["properties"]["tls"] = oa.obj(["enabled", "min_version"], enabled={"const": True},
                                             min_version={"enum": ["1.2", "1.3"]})
 
 
@@ -108,14 +108,14 @@ def secure(paths: dict[str, Any], lock_scopes: tuple[str, ...]) -> None:
             else segments[1]
         for method, op in ops.items():
             responses = op["responses"]
-            responses["401"] = oa._error(AUTH_401)
+            responses["401"] = oa.error(AUTH_401)
             text = responses["403"]["description"] if "403" in responses else ""
             if text.startswith("An API token is configured"):
                 text = ""
             for cut in _STALE:  # what a wrong legacy token was answered before: 401 now, as in medkit
                 text = text.replace(cut, "")
-            responses["403"] = oa._error(f"{text}; or {AUTH_403_LOWER}" if text else AUTH_403)
+            responses["403"] = oa.error(f"{text}; or {AUTH_403_LOWER}" if text else AUTH_403)
             if method in ("post", "put", "delete") and family in lock_scopes:
                 old409 = responses.get("409")
-                responses["409"] = oa._error(LOCK_409 + (f"; {old409['description']}" if old409 else ""))
+                responses["409"] = oa.error(LOCK_409 + (f"; {old409['description']}" if old409 else ""))
             op.setdefault("security", [{"bearerAuth": []}, {}])

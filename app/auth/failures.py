@@ -18,7 +18,6 @@ import os
 
 from common import settings
 
-from .. import ratelimit  # (a module: ratelimit keys its buckets with this package's rate_key)
 from .tokens import OAuthError
 
 FILE_NAME = "authfail.buckets"
@@ -33,6 +32,9 @@ class TooManyFailures(OAuthError):
 
 class FailureLimit:
     def __init__(self, runtime_dir: str, limit: str):
+        # here, not at load: ratelimit keys its buckets with this package's rate_key (no import cycle)
+        from .. import ratelimit
+
         rate = settings.parse_rate(limit, "auth_failure_limit")
         self.buckets = ratelimit.SharedBuckets(os.path.join(runtime_dir, FILE_NAME), rate, None) if rate else None
 

@@ -1,6 +1,6 @@
 """Revoked tokens, shared by every HTTP worker and kept across restarts.
 
-A revocation is a row of ``access.db``'s ``revoked`` table (``app/accessdb.py``): the token's id
+A revocation is a row of ``access.db``'s ``revoked`` table (``app/core/accessdb.py``): the token's id
 (``jti``, never the token) and when the token expires anyway, after which the row is dropped.  The
 worker that records one writes the row, then bumps the ``revocations`` generation
 (``common/generations.py``) and only then answers; every worker reads that generation before it
@@ -21,7 +21,7 @@ import time
 
 from common.generations import Generations
 
-from .. import accessdb, blocking
+from ..core import accessdb, blocking
 
 log = logging.getLogger("sovd.http.auth")
 SLOT = "revocations"

@@ -3,7 +3,7 @@
 The table is medkit's (``src/ros2_medkit_gateway/src/core/auth/auth_config.cpp``,
 ``AuthConfig::get_role_permissions``), entry for entry: ``METHOD:/path`` with ``*`` for one path
 segment and ``**`` for any number.  A role may send a request when one of its entries matches the
-method and the request's path (``app/target.py`` makes one segment of a data id or an operation
+method and the request's path (``app/core/target.py`` makes one segment of a data id or an operation
 id that holds slashes).  ``HEAD`` is checked as ``GET``.  What the table does not list is refused
 to every role but admin, as in medkit: triggers (read and write), the per-entity ``docs``, the
 audit trail.  medkit's documentation says otherwise in two places; this table, like medkit's
@@ -14,7 +14,7 @@ code, lets operators and configurators clear faults, and lets only admin touch t
 :data:`ACTIONS` names what an operator or the dashboard asks about ("may this role publish?"),
 each by one request; :func:`summary` answers them for a role (``GET /api/v1/auth/x-medkit-whoami``,
 the dashboard) and :func:`markdown` makes the README's table from them:
-``python -m app.auth.roles --write`` rewrites it, ``tests/app/test_auth_roles.py`` fails when the
+``python -m app.auth.roles --write`` rewrites it, ``tests/app/auth/test_app_auth_roles.py`` fails when the
 committed README differs.
 """
 

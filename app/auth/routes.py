@@ -27,9 +27,9 @@ from urllib.parse import parse_qsl
 import orjson
 from flask import Blueprint, request
 
-from ..entities import API_BASE
-from ..routes import bodies
-from ..routes.common import json_response
+from ..core import bodies
+from ..core.common import json_response
+from ..core.entities import API_BASE
 from . import GRANTED, _resolve, get, identity, oauth_response, roles
 from .revocations import StoreError
 from .tokens import OAuthError

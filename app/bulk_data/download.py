@@ -25,7 +25,7 @@ from flask import Response, current_app, request
 from werkzeug.http import http_date, parse_if_range_header, parse_range_header
 from werkzeug.wsgi import FileWrapper
 
-from ..errors import ApiError
+from ..core.errors import ApiError
 
 BLOCK = 256 * 1024  # bytes per read where the file cannot be sent with sendfile
 EXPOSED = "Content-Disposition, Content-Length, Content-Range, Accept-Ranges, ETag, Last-Modified"

@@ -46,8 +46,8 @@ from werkzeug.exceptions import RequestEntityTooLarge
 from werkzeug.http import parse_options_header
 from werkzeug.sansio.multipart import Data, Epilogue, Field, File, MultipartDecoder, NeedData
 
-from ..errors import ApiError
-from ..streams import rfc3339
+from ..core.errors import ApiError
+from ..sse.stream import rfc3339
 
 DESCRIPTOR = "descriptor.json"
 INCOMING = ".incoming"

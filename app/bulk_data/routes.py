@@ -12,7 +12,7 @@
 ``rosbags`` holds the fault recordings (the ROS worker's, ``rosworker/bulk_data/``): read-only
 (POST and DELETE answer 400 as in medkit) and scoped like faults: an entity sees a
 recording when one of its faults belongs to the entity (medkit's all-sources rule,
-``app/routes/faults.py``: every reporting source is one of the entity's nodes).  A
+``app/faults/routes.py``: every reporting source is one of the entity's nodes).  A
 recording's download URL takes its id (``fault_<CODE>_<ms>``) or, as medkit's older
 URLs, a fault code (that fault's newest recording, when that fault is in scope).  The
 ROS worker tells where the file is; the HTTP worker reads it.
@@ -35,13 +35,12 @@ from werkzeug.routing import BaseConverter
 from common import settings
 from ipc.errors import IpcError
 
-from .. import rosclient
-from ..entities import API_BASE, PARAM_NAMES, Entity
-from ..errors import ApiError
-from ..routes.auth import authorize_feature
-from ..routes.common import config, json_response, lookup, member_nodes
-from ..routes.faults import in_scope
-from ..streams import rfc3339
+from ..core import rosclient
+from ..core.auth import authorize_feature
+from ..core.common import config, in_scope, json_response, lookup, member_nodes
+from ..core.entities import API_BASE, PARAM_NAMES, Entity
+from ..core.errors import ApiError
+from ..sse.stream import rfc3339
 from . import download, files
 
 bp = Blueprint("bulk_data", __name__, url_prefix=API_BASE)
@@ -210,7 +209,7 @@ def upload(collection: str, entity_id: str, rest: str):
 
 
 class _Body:
-    """The request's body stream, its framing errors as the contract's 400 (``app/routes/bodies.py``'s)."""
+    """The request's body stream, its framing errors as the contract's 400 (``app/core/bodies.py``'s)."""
 
     def __init__(self, stream):
         self.stream = stream

@@ -1,5 +1,5 @@
-"""The bulk-data routes' part of the OpenAPI document (``app/openapi.py`` takes :func:`paths` and
-:data:`SCHEMAS`): medkit's operationIds (``ros2_medkit_clients``), its schema names
+"""The bulk-data routes' part of the OpenAPI document (its ``FAMILY.spec``,
+``app/openapi/``): medkit's operationIds (``ros2_medkit_clients``), its schema names
 (``BulkDataCategoryList``, ``BulkDataDescriptor``, ``BulkDataDescriptorList``) and tag (``Bulk Data``)."""
 
 from __future__ import annotations
@@ -7,6 +7,21 @@ from __future__ import annotations
 from typing import Any
 
 from ipc import counters
+
+from ..openapi.build import (
+    BODY_ERRORS,
+    INT,
+    STR,
+    Spec,
+    counter_props,
+    error,
+    id_param,
+    obj,
+    ok,
+    op,
+    ref,
+)
+from ..openapi.build import schema_name as title
 
 TAG = "Bulk Data"
 TAG_DESCRIPTION = ("Fault recordings (MCAP, the `rosbags` category) and uploaded files (`bulk_data_categories`); "
@@ -24,8 +39,6 @@ _RANGE_HEADERS = {
 
 
 def schemas() -> dict[str, Any]:
-    from ..openapi import INT, STR, ref
-    from ..openapi import _obj as obj
 
     descriptor = obj(
         ["id", "name", "mimetype", "size", "creation_date"],
@@ -53,8 +66,6 @@ HEALTH_DESCRIPTION = ("fault recordings (rosworker/bulk_data/): the ring buffer,
 
 
 def health_schema() -> dict[str, Any]:
-    from ..openapi import _counter_props as counter_props
-    from ..openapi import _obj as obj
 
     return {**obj(list(counters.health_keys("bulk_data")), **counter_props("bulk_data")),
             "description": HEALTH_DESCRIPTION}
@@ -62,12 +73,6 @@ def health_schema() -> dict[str, Any]:
 
 def paths() -> dict[str, Any]:
     """``{path: {method: operation}}`` of every bulk-data route."""
-    from ..openapi import BODY_ERRORS, STR
-    from ..openapi import _error as error
-    from ..openapi import _id_param as id_param
-    from ..openapi import _ok as ok
-    from ..openapi import _op as op
-    from ..openapi import _title as title
 
     category = {"name": "category_id", "in": "path", "required": True, "schema": STR,
                 "description": "`rosbags` or one of bulk_data_categories"}
@@ -144,3 +149,6 @@ def paths() -> dict[str, Any]:
                 f"download{kind}BulkData", TAG, f"Download a {kind.lower()}'s file", download_ok, "400", gone,
                 parameters=params + [sub, category, file_id])}
     return out
+
+
+SPEC = Spec(paths=paths, schemas=schemas(), tags=({"name": TAG, "description": TAG_DESCRIPTION},))

@@ -1,4 +1,4 @@
-"""The fleet on the HTTP side (issue 34; ``docs/fleet.md``): one family, one contract, ``init_app(app)``.
+"""The fleet on the HTTP side (issue 34; ``docs/fleet.md``): a mode of the gateway, not a family; ``init_app(app)``.
 
 - Every gateway: a request its robot's fleet link makes (marked, ``ipc/fleet.py``) needs a valid
   identity, a read included (``robotside.py``).
@@ -17,8 +17,8 @@ from . import link, robotside
 
 def init_app(app: Flask) -> bool:
     """Plug the fleet in; True when this gateway is the fleet gateway (its routes are the only ones)."""
-    from ..metrics import COLLECTORS
-    from ..routes.root import HEALTH_SECTIONS
+    from ..core.metrics import COLLECTORS
+    from ..core.root import HEALTH_SECTIONS
 
     cfg = app.config["SOVD"]
     robotside.init_app(app)
@@ -34,9 +34,10 @@ def init_app(app: Flask) -> bool:
 
         app.extensions.setdefault(HEALTH_SECTIONS, {})["x-medkit-fleet"] = lambda: fleet_section(link.get().stats()[1])
         return False
-    from ..routes import ui
-    from . import routes
+    from ..core import ui
+    from . import routes, stream
 
+    stream.setup(app)   # its merged fault stream (the faults family's hub on the link's channel)
     app.register_blueprint(routes.bp)
     app.register_blueprint(routes.robot_bp)   # /fleet/<fleet_id>/...: one robot, and the dashboard on it
     app.register_blueprint(ui.bp)

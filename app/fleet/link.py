@@ -1,6 +1,6 @@
 """The HTTP worker's side of the fleet link: one client per process, and what its errors answer.
 
-Like ``app/rosclient.py`` for the ROS worker: nothing is made before the fork; the
+Like ``app/core/rosclient.py`` for the ROS worker: nothing is made before the fork; the
 :class:`~ipc.client.RosWorkerClient` of ``ipc/fleet.py``'s endpoint is made on first use in the
 process that uses it.  Every call has a deadline; a link that does not answer is a 503 with
 ``x-medkit-fleet-link-unavailable`` (the supervisor restarts it), never a hung worker.
@@ -18,8 +18,8 @@ from ipc import fleet
 from ipc.client import RosWorkerClient
 from ipc.errors import IpcError
 
-from .. import requestid
-from ..errors import ApiError
+from ..core import requestid
+from ..core.errors import ApiError
 
 EXTENSION = "sovd_fleet_link"
 STATS_TIMEOUT_S = 0.3

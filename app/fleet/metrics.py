@@ -11,7 +11,7 @@ from typing import Any
 
 from ipc import counters
 
-from ..metrics import _number
+from ..core.metrics import number
 from .link import FleetLink
 
 FIELDS = tuple(c for c in counters.FLEET_COUNTERS if c.section == "fleet" and c.metric)
@@ -34,7 +34,7 @@ class FleetCollector:
             return
         fleet = stats.get("fleet") if isinstance(stats.get("fleet"), dict) else {}
         for c in FIELDS:
-            value = _number(fleet.get(c.name))
+            value = number(fleet.get(c.name))
             if value is not None:
                 family = CounterMetricFamily if c.kind == counters.COUNTER else GaugeMetricFamily
                 yield family(c.metric, c.help, value=value * c.scale)
@@ -44,6 +44,6 @@ class FleetCollector:
             family = (GaugeMetricFamily if c.kind == counters.GAUGES_BY else CounterMetricFamily)(
                 c.metric, c.help, labels=[c.label])
             for robot, value in sorted(values.items()):
-                if _number(value) is not None:
-                    family.add_metric([str(robot)], _number(value) * c.scale)
+                if number(value) is not None:
+                    family.add_metric([str(robot)], number(value) * c.scale)
             yield family

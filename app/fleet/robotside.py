@@ -3,7 +3,7 @@
 The robot's fleet link makes every fleet request to this gateway over the loopback and marks it
 (``ipc/fleet.py``'s :data:`~ipc.fleet.MARK`).  Such a request, a read included, must carry a valid
 identity: the caller's ``Authorization``, checked here as the gateway checks a write's
-(``app/routes/auth.py``; the roles of the access issue when they come).  A local client that sends
+(``app/core/auth.py``; the roles of the access issue when they come).  A local client that sends
 the header only makes its own request stricter, so the mark needs no secret.
 """
 
@@ -13,7 +13,7 @@ from flask import Flask, request
 
 from ipc import fleet
 
-from ..routes.auth import authorize_change
+from ..core.auth import authorize_change
 
 
 def _fleet_identity() -> None:

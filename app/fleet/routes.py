@@ -23,7 +23,7 @@ The HTTP workers hold no tree and no Zenoh session: every answer comes from the 
   through the fleet, under its own ids, forwarded as the entity routes are; with
   ``/fleet/<fleet_id>/ui/`` the dashboard shows that robot (its robot picker, ``app/ui/js/fleet.js``).
 
-Every route that shows what the robots hold asks for a valid identity first (``app/routes/auth.py``):
+Every route that shows what the robots hold asks for a valid identity first (``app/core/auth.py``):
 the fleet gateway's tree and events are the robots' data, and each robot checks the forwarded
 identity again itself.
 """
@@ -39,14 +39,13 @@ from flask import Blueprint, current_app, redirect, request
 from common.process import DISTRIBUTION, package_version
 from ipc import counters, fleet
 
-from .. import faultstream, openapi, requestid
-from ..entities import API_BASE, KINDS, RELATIONS, Entity
-from ..errors import ApiError
-from ..routes import faults as fault_routes
-from ..routes import root as root_routes
-from ..routes import ui, unimplemented
-from ..routes.auth import authorize_change
-from ..routes.common import check_entity_id, config, json_response
+from .. import openapi
+from ..core import requestid, ui, unimplemented
+from ..core import root as root_routes
+from ..core.auth import authorize_change
+from ..core.common import check_entity_id, config, json_response
+from ..core.entities import API_BASE, KINDS, RELATIONS, Entity
+from ..core.errors import ApiError
 from . import link, stream
 
 bp = Blueprint("fleet", __name__, url_prefix=API_BASE)
@@ -206,7 +205,7 @@ def _served_here(collection: str, entity_id: str, rest: str, found: dict[str, An
                               "_links": {"self": f"{href}/{part}", RELATIONS[(collection, part)][1]: href}})
     if request.method == "GET" and part in FANOUT:
         if part == "faults":
-            fault_routes._statuses({"entity_id": entity_id})   # medkit's 400 for a bad ?status= (nothing sent)
+            stream.check({"entity_id": entity_id})   # medkit's 400 for a bad ?status= (nothing sent)
         return _json(_fanout(found.get("contributors") or [], entity_id))
     robots = ", ".join(found.get("contributors") or [])
     raise ApiError(400, "invalid-request", f"{KINDS[collection][1]} '{entity_id}' spans several robots ({robots}); "
@@ -224,20 +223,14 @@ def _fanout(targets: list[str] | None, entity_id: str | None = None) -> bytes:
 @bp.get("/faults")
 def faults():
     authorize_change()
-    fault_routes._statuses()   # medkit's 400 for a bad ?status=, before any robot is asked
+    stream.check()   # medkit's 400 for a bad ?status=, before any robot is asked
     return _json(_fanout(None))
 
 
 @bp.get("/faults/stream")
 def fault_stream():
     authorize_change()
-    cfg = config()
-    fleet_link = link.get()
-
-    def replay(after: int) -> list[dict[str, Any]]:
-        return fleet_link.call("fleet_events", {"after": after}, faultstream.REPLAY_TIMEOUT).get("events") or []
-
-    return faultstream.response(stream.hub(cfg.runtime_dir, cfg.stream_send_timeout), cfg.max_fault_streams, replay)
+    return stream.response()
 
 
 # ---- one robot's own API, and the dashboard on it (the robot picker) -------------------------------------
@@ -246,7 +239,7 @@ robot_bp = Blueprint("fleet_robot", __name__, url_prefix="/fleet/<fleet_id>")
 
 @robot_bp.after_request
 def _ui_headers(response):
-    """The dashboard's security headers (``app/routes/ui.py``) on its files here too."""
+    """The dashboard's security headers (``app/core/ui.py``) on its files here too."""
     return ui._security_headers(response) if "/ui" in request.path else response
 
 

@@ -36,12 +36,12 @@ from flask import current_app, request
 
 from common.generations import Generations
 
-from .. import auth, metrics, rosclient
-from .. import target as targets
-from ..errors import ApiError
+from .. import auth
+from ..core import metrics, rosclient
+from ..core import target as targets
+from ..core.errors import ApiError
 
-SCOPES = ("data", "operations", "configurations", "faults", "modes", "scripts", "bulk-data", "logs",
-          "cyclic-subscriptions", "triggers")
+SCOPES = targets.LOCK_SCOPES
 SLOT = "locks"
 
 

@@ -30,11 +30,11 @@ from typing import Any
 
 from flask import Blueprint, current_app, request
 
-from .. import auth, rosclient
-from ..entities import API_BASE
-from ..errors import ApiError
-from ..routes import bodies
-from ..routes.common import json_response, lookup
+from .. import auth
+from ..core import bodies, rosclient
+from ..core.common import json_response, lookup
+from ..core.entities import API_BASE
+from ..core.errors import ApiError
 from .check import SCOPES
 
 bp = Blueprint("locks", __name__, url_prefix=API_BASE)

@@ -18,12 +18,12 @@ runs; the recordings already on disk are still listed and served.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
 from typing import Any
 
 from common import settings as config
 from ipc.errors import IpcError
 
+from ..core.family import Core, Family
 from .recorder import Recorder
 from .writer import RecordingStore
 
@@ -41,18 +41,24 @@ def snapshot(recording: dict[str, Any]) -> dict[str, Any]:
             "topics": [t["topic"] for t in recording["topics"]], "messages": recording["messages"]}
 
 
-class BulkData:
-    """The family: its recorder, its store of recordings, its commands."""
+class BulkData(Family):
+    """The family: its recorder, its store of recordings, its commands.
+
+    What it needs of the others goes through the core: the recorded topics' subscriptions are
+    read by the data family's pool (``core.shared_topics``); the faults family tells it of each
+    confirmation and lists its recordings among a fault's snapshots (``core.extend``:
+    ``fault_confirmed``, ``fault_snapshots``)."""
 
     name = "bulk_data"
 
     def __init__(self) -> None:
-        self.commands: dict[str, Callable] = {}
+        super().__init__()
         self.recorder: Recorder | None = None
         self.store: RecordingStore | None = None
 
-    def start(self, cfg, node, executor, stats, endpoints, pool, faults) -> None:
-        """Build, load the index, hook into the pool and the faults, subscribe (ROS thread, before the loop)."""
+    def start(self, core: Core) -> None:
+        """Build, load the index, register with the core, subscribe (ROS thread, before the loop)."""
+        cfg, stats = core.cfg, core.stats
         self.store = RecordingStore(config.rosbag_dir(cfg), stats,
                                     max_total_bytes=cfg.fault_rosbag_max_total_mb * 2**20,
                                     max_per_fault=cfg.fault_rosbag_max_bags_per_fault)
@@ -60,22 +66,24 @@ class BulkData:
         self.store.start()
         topics = config.names(cfg.fault_rosbag_topics) if cfg.fault_rosbag_enabled else []
         stats.rosbag_buffer_cap_mb = cfg.fault_rosbag_max_buffer_mb
-        self.recorder = Recorder(node, executor, stats, endpoints, pool, self.store.submit, topics=topics,
+        self.recorder = Recorder(core.node, core.executor, stats, core.endpoints, core.shared_topics,
+                                 self.store.submit, topics=topics,
                                  duration_s=cfg.fault_rosbag_duration_s,
                                  duration_after_s=cfg.fault_rosbag_duration_after_s,
                                  max_buffer_bytes=cfg.fault_rosbag_max_buffer_mb * 2**20)
         if topics:
-            faults.on_confirmed = self.recorder.on_confirmed
+            core.extend("fault_confirmed", self.recorder.on_confirmed)
             self.recorder.start()
         elif cfg.fault_rosbag_enabled:
             log.warning("fault_rosbag_enabled is on but fault_rosbag_topics names no topic: nothing is recorded")
-        faults.recordings = lambda code: [snapshot(r) for r in self.store.of_fault(code)]
+        core.extend("fault_snapshots", lambda code: [snapshot(r) for r in self.store.of_fault(code)])
         self.commands = {"bulk_rosbags": self._list, "bulk_rosbag_get": self._get}
         if cfg.debug_commands:
             self.commands["bulk_debug_pause"] = self._debug_pause
 
     def shutdown(self) -> None:
-        """After the pool's shutdown: close an open recording, unsubscribe, let the writer finish."""
+        """After the data family's (the pool's; the families shut down in reverse name order): close an
+        open recording, unsubscribe, let the writer finish."""
         if self.recorder is not None:
             self.recorder.shutdown()
         if self.store is not None:

@@ -10,7 +10,7 @@ into the ring buffer: ``fault_rosbag_duration_s`` of messages (by receive time),
 ``rosbag_buffer_drops``.
 
 One subscription per topic.  A recorded topic that is also read over HTTP is not
-subscribed twice: the pool (``rosworker/pool.py``) asks :meth:`Recorder.shared_for` before
+subscribed twice: the pool (``rosworker/data/pool.py``, through ``core/topics.py``) asks :meth:`Recorder.shared_for` before
 it subscribes, and reads the newest message through :class:`SharedSubscription`, whose
 ``take_message`` drains the recorder's subscription into the ring and hands the pool the
 newest message it has not seen yet.  A topic pooled before its recorded subscription
@@ -40,7 +40,7 @@ from typing import Any
 
 from rclpy.qos import QoSProfile
 
-from .. import msgtypes, qos
+from ..ros import msgtypes, qos
 
 log = logging.getLogger("sovd.rosworker.bulk_data")
 
@@ -174,13 +174,13 @@ class Recording:
 class Recorder:
     """The recorded topics' subscriptions, the ring buffer and the open recording (ROS thread)."""
 
-    def __init__(self, node, executor, stats, endpoints, pool, submit, *, topics: list[str],
+    def __init__(self, node, executor, stats, endpoints, shared, submit, *, topics: list[str],
                  duration_s: float, duration_after_s: float, max_buffer_bytes: int):
         self.node = node
         self.executor = executor
         self.stats = stats
         self.endpoints = endpoints
-        self.pool = pool
+        self.shared = shared   # core/topics.py SharedTopics: the data family's pool reads through ours
         self.submit = submit            # hands a closed Recording to the writer thread; False: refused
         self.after_s = duration_after_s
         self.cap_bytes = max_buffer_bytes
@@ -195,7 +195,7 @@ class Recorder:
         """Subscribe what can be, and look again every ``CHECK_EVERY`` s; nothing at all without topics."""
         if not self.taps:
             return
-        self.pool.shared_subscription = self.shared_for
+        self.shared.provide(self.shared_for)
         self.check()
         self._every(CHECK_EVERY, self.check)
         self._every(DRAIN_EVERY, self.drain)
@@ -211,7 +211,7 @@ class Recorder:
         """Close an open recording (the writer gets what it has) and unsubscribe (after the pool's shutdown)."""
         if self.active is not None:
             self._close()
-        self.pool.shared_subscription = None
+        self.shared.provide(None)
         for tap in self.taps.values():
             self._unsubscribe(tap)
 
@@ -268,7 +268,7 @@ class Recorder:
         else:
             self.stats.rosbag_topics_recorded += 1
             log.info("recording %s [%s] %s", tap.topic, type_name, qos.describe(profile))
-        self.pool.adopt(tap.topic)
+        self.shared.adopted(tap.topic)
 
     def _problem(self, tap: Tap, why: str) -> None:
         if tap.problem != why:
@@ -279,7 +279,7 @@ class Recorder:
     def _unsubscribe(self, tap: Tap) -> None:
         if tap.sub is None:
             return
-        self.pool.unshare(tap.topic)
+        self.shared.unshared(tap.topic)
         sub, tap.sub, tap.type_name, tap.newest, tap.fresh = tap.sub, None, None, None, False
         self.stats.rosbag_topics_recorded -= 1
         self._destroy(sub, tap.topic)

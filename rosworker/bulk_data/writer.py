@@ -47,7 +47,7 @@ import time
 from collections import Counter
 from typing import Any
 
-from common.process import package_version
+from common.process import package_version, remove
 
 from . import msgdefs
 
@@ -377,12 +377,7 @@ def read_meta(path: str) -> dict[str, Any] | None:
 
 
 def _unlink(path: str) -> None:
-    try:
-        os.unlink(path)
-    except FileNotFoundError:
-        pass
-    except OSError as exc:
-        log.warning("could not delete %s: %s", path, exc)
+    remove(path, log, "could not delete")
 
 
 def _fsync_dir(directory: str) -> None:

@@ -1,7 +1,7 @@
 """The fleet gateway's events channel: fault events from the link to the HTTP workers.
 
 The same channel as the ROS worker's (``ipc/events.py``), so an HTTP worker reads it with the same
-hub (``app/fleet/stream.py`` subclasses ``app/faultstream.py``'s): an XPUB bound on
+hub (``app/fleet/stream.py``: the faults family's hub on this channel): an XPUB bound on
 ``ipc://<runtime_dir>/fleetlink-events.sock`` (0600), verbose, that confirms every subscription with
 a one-frame message of its key, sends ``f|`` + msgpack ``{id, event_type, fault, timestamp}`` per
 fault event and ``h|`` + msgpack ``{pid, t}`` every second.

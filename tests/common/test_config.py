@@ -152,7 +152,7 @@ def test_fleet_settings_refuse_bad_values_naming_the_source(argv, env, needle):
 
 def test_every_setting_is_in_the_settings_reference():
     """docs/settings.md has one row per setting: its flag, its variable, its default."""
-    from tests.support.procs import REPO
+    from common.harness.procs import REPO
 
     rows = {line.split("|")[2].strip(" `"): [c.strip() for c in line.split("|")]
             for line in (REPO / "docs" / "settings.md").read_text().splitlines() if line.startswith("| `--")

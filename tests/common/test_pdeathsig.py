@@ -15,7 +15,7 @@ from pathlib import Path
 import psutil
 
 from common import pdeathsig
-from tests.support.procs import Proc, free_port, poll_until
+from common.harness.procs import Proc, free_port, poll_until
 
 BIN = Path(sys.executable).parent
 

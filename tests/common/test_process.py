@@ -10,7 +10,7 @@ from importlib import metadata
 import pytest
 
 from common import process
-from tests.support.procs import REPO
+from common.harness.procs import REPO
 
 
 def test_package_version_is_the_installed_one():

@@ -10,11 +10,11 @@ import time
 
 import pytest
 
-from app.errors import ApiError
+from app.core.errors import ApiError
+from common.harness.procs import Proc, poll_until
 from ipc import protocol
 from ipc.client import POOL_SIZE, RosWorkerClient
 from ipc.errors import IpcError
-from tests.support.procs import Proc, poll_until
 from tests.support.rosworker import RosWorker
 
 

@@ -1,10 +1,10 @@
 """The counter declaration (``ipc/counters.py``) against the five places that show counters.
 
-The ROS worker's ``stats`` answer (the real ``rosworker/stats.py``), ``/health`` and ``/metrics``
+The ROS worker's ``stats`` answer (the real ``rosworker/core/stats.py``), ``/health`` and ``/metrics``
 (the real Flask app against a stand-in ROS worker that answers with that real snapshot), the
 OpenAPI ``HealthStatus`` schema and ``ipc/PROTOCOL.md``: each must show exactly the declared
 counters, in the declared order, so a counter added, renamed or dropped anywhere but in the
-declaration fails here.  (Through a real gateway: ``tests/app/test_app_streams.py`` checks the HTTP
+declaration fails here.  (Through a real gateway: ``tests/system/subscriptions/test_app_streams.py`` checks the HTTP
 workers' stream counters in ``/health`` against ``/metrics``.)
 """
 
@@ -19,7 +19,7 @@ from prometheus_client.parser import text_string_to_metric_families
 from app import openapi
 from common.settings import SETTINGS
 from ipc import counters
-from rosworker.stats import Stats
+from rosworker.core.stats import Stats
 from tests.support.fakeworker import FakeWorker, make_app
 
 HEALTH_SECTIONS = [name for name, health in counters.SECTIONS.items() if health]

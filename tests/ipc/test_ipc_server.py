@@ -2,8 +2,8 @@
 
 Real files, real flocks (one holder in another process), real ZeroMQ sockets
 and the real client (``ipc/client.py``).  The control thread's containment of a
-failing answer is in tests/rosworker/test_rosworker_control.py; the work socket, served
-by the ROS thread, in tests/rosworker/test_rosworker_executor.py.
+failing answer is in tests/rosworker/core/test_rosworker_control.py; the work socket, served
+by the ROS thread, in tests/rosworker/core/test_rosworker_executor.py.
 """
 
 from __future__ import annotations
@@ -17,11 +17,11 @@ import time
 import pytest
 import zmq
 
+from common.harness.procs import poll_until
 from ipc import events, protocol
 from ipc.client import RosWorkerClient
 from ipc.server import ControlServer, LockHeld, RuntimeLock, bind_publisher
-from rosworker.stats import Stats
-from tests.support.procs import poll_until
+from rosworker.core.stats import Stats
 
 HOLD = """
 import sys, time

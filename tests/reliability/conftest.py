@@ -17,8 +17,8 @@ from pathlib import Path
 
 import pytest
 
+from common.harness.gateway import Gateway
 from tests.reliability import load
-from tests.support.gateway import Gateway
 
 HERE = Path(__file__).parent
 # Whole-test limits (pytest-timeout): a hang fails the test instead of the session.

@@ -60,14 +60,14 @@ VENDOR_CODES = {
     "x-medkit-ros-worker-backpressure": 503,
     "x-medkit-pool-busy": 503,
     "x-medkit-message-undecodable": 502,
-    # cyclic subscriptions' refusals (app/routes/subscriptions.py)
+    # cyclic subscriptions' refusals (app/subscriptions/routes.py)
     "x-medkit-invalid-resource-uri": 400,
     "x-medkit-entity-mismatch": 400,
     "x-medkit-collection-not-supported": 400,
     "x-medkit-unsupported-protocol": 400,
     "x-medkit-subscribe-failed": 500,
     "x-medkit-publish-failed": 500,
-    # operations and configurations (app/errors.py)
+    # operations and configurations (app/core/errors.py)
     "x-medkit-ros2-service-unavailable": 503,
     "x-medkit-ros2-action-unavailable": 503,
     "x-medkit-ros2-action-rejected": 400,

@@ -14,14 +14,16 @@ import sys
 
 import pytest
 
-from tests.support.procs import REPO
+from common.harness.procs import REPO
 
 CASES = {"floor8", "floor1", "warm8", "warm1", "echo8", "echo1", "hop1", "inside", "old", "cold", "image",
          "image_b64", "idle", "memory", "streams", "fanout", "stream_image", "made_up", "sub_changes",
          "trigger",  # operations: a Trigger call against a bare rclpy client
          "param_get", "param_put", "rosout",  # configurations (bench/params.py); logs (bench/logs.py)
          "faults_cpu", "faults_confirm",  # faults (issue 22): bench/faults.py
-         "fleet_faults", "fleet_hung", "fleet_fault_stream", "fleet_memory", "fleet_idle"}  # bench/fleet.py
+         "fleet_faults", "fleet_hung", "fleet_fault_stream", "fleet_memory", "fleet_idle",  # bench/fleet.py
+         "auth", "write_checks",  # a JWT on every warm sample, a write's lock check and audit (issue 31): bench/auth.py
+         "rosbag_cpu", "rosbag_write_sample", "rosbag_download"}  # recordings of faults (issue 32): bench/bulk_data.py
 
 
 @pytest.mark.timeout(420)
@@ -62,6 +64,12 @@ def test_quick_bench_runs_every_case_and_writes_json(tmp_path):
     # faults (issue 22): the arrays were taken, every probe fault was confirmed
     assert rows["faults_cpu"]["values"]["arrays_taken"] > 0  # the worker took /diagnostics while measured
     assert rows["faults_confirm"]["values"]["n"] == 5 and rows["faults_confirm"]["values"]["p50_ms"] > 0
+    # issue 31: both gateways answered the warm sample; every write of the checked gateway was audited
+    assert rows["auth"]["values"]["auth8"]["rps"] > 0 and rows["auth"]["values"]["plain8"]["rps"] > 0
+    assert rows["write_checks"]["values"]["audited"] >= rows["write_checks"]["values"]["n"] > 0
+    # issue 32: a recording was written while samples were taken, and downloaded
+    assert rows["rosbag_write_sample"]["values"]["recordings_written"] > 0
+    assert rows["rosbag_download"]["values"]["size_bytes"] > 0 and rows["rosbag_download"]["values"]["rounds"] >= 1
     # The table is printed, one line per case.
     for row in rows.values():
         assert row["case"] in proc.stdout

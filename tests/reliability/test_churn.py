@@ -36,6 +36,7 @@ import sys
 import threading
 import time
 
+from common.harness.procs import REPO, poll_until
 from tests.reliability.load import (
     Answer,
     Client,
@@ -48,7 +49,6 @@ from tests.reliability.load import (
     restarts_in,
     scaled,
 )
-from tests.support.procs import REPO, poll_until
 
 TOPICS = [f"/churn/t{i}" for i in range(scaled(4, 6))]
 CYCLES = scaled(40, 500)

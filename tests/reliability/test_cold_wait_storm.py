@@ -16,6 +16,7 @@ import threading
 
 import requests
 
+from common.harness.procs import poll_until
 from tests.reliability.load import (
     Client,
     HealthProbe,
@@ -27,7 +28,7 @@ from tests.reliability.load import (
     restarts_in,
     scaled,
 )
-from tests.support.procs import RosNode, poll_until, publisher, unique_topic
+from tests.support.rospub import RosNode, publisher, unique_topic
 
 CAP = 4
 SAMPLE_TIMEOUT = 3.0

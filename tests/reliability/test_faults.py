@@ -26,6 +26,7 @@ import time
 
 import psutil
 
+from common.harness.procs import Proc, poll_until
 from tests.reliability.load import (
     LONG,
     Answer,
@@ -40,7 +41,7 @@ from tests.reliability.load import (
     restarts_in,
     scaled,
 )
-from tests.support.procs import Proc, RosNode, poll_until
+from tests.support.rospub import RosNode
 
 LIVE = [f"/faults/live{i}" for i in range(4)]
 CLIENTS = scaled(16, 32)

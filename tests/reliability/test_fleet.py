@@ -1,7 +1,7 @@
 """The fleet over Zenoh under trouble (issue 34): a router that goes away, robots that come and go.
 
 Scenario A, the router restarts: a real robot (a gateway with ``--fleet-link`` and a ``/diagnostics``
-publisher) and simulated robots (``bench/fleetsim.py``) are in the fleet; the router is stopped,
+publisher) and simulated robots (``common/harness/fleetsim.py``) are in the fleet; the router is stopped,
 a fault is confirmed on the real robot while nobody can hear it, and a router is started again on
 the same port.  What must hold: every robot is back in ``/health``, the fleet's answers are whole
 again, and the fault confirmed during the outage reaches the fleet's stream, once (the fleet
@@ -20,13 +20,13 @@ import random
 import threading
 import time
 
-from bench.diagpub import DiagPub
+from common.harness.diagpub import DiagPub
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 from tests.reliability import load
 from tests.support.fleet import AUTH, TOKEN, FleetGateway, Router, SimFleet
-from tests.support.gateway import Gateway
-from tests.support.procs import poll_until
 from tests.support.sse import EventStream
-from tests.system.test_fleet_sim import recorded
+from tests.system.fleet.test_fleet_sim import recorded
 
 TIMEOUT = 1.0
 SIM_ROBOTS = load.scaled(20, 200)

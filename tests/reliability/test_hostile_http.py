@@ -28,6 +28,8 @@ import requests
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 from ipc.client import RosWorkerClient
 from tests.reliability.load import (
     Answer,
@@ -39,8 +41,7 @@ from tests.reliability.load import (
     record,
     scaled,
 )
-from tests.support.gateway import Gateway
-from tests.support.procs import RosNode, poll_until
+from tests.support.rospub import RosNode
 
 FUZZ_CASES = scaled(500, 5000)
 BODY_CASES = scaled(300, 3000)
@@ -367,7 +368,7 @@ def hand_made_cases(host: str) -> list[tuple[str, bytes, set[int], str]]:
         ("fixed array too long", put(pub("geometry_msgs/msg/PoseWithCovariance",
                                          {"covariance": [0.0] * 5000})), {400}, APP),
         ("key of 50000 characters", put(pub("std_msgs/msg/String", {"k" * 50000: 1})), {400}, APP),
-        # wrong content types: refused (415) even when the body is JSON (app/routes/bodies.py)
+        # wrong content types: refused (415) even when the body is JSON (app/core/bodies.py)
         ("text/plain", put(pub("std_msgs/msg/String", {"data": "x"}), **{"Content-Type": "text/plain"}),
          {415}, APP),
         ("form-urlencoded", put(b"type=std_msgs%2Fmsg%2FString&data=x",
@@ -448,7 +449,7 @@ def subscriptions_of(gw, host: str) -> list[str]:
 
 @pytest.mark.parametrize("route", ["PUT data", "POST cyclic-subscriptions", "PUT cyclic-subscriptions"])
 def test_every_json_body_route_refuses_bad_bodies_alike(target, route):
-    """One body reader (``app/routes/bodies.py``) for every route that takes a JSON body.
+    """One body reader (``app/core/bodies.py``) for every route that takes a JSON body.
 
     BUGS (issue 18, defects 3 and 9), on the subscription routes: a malformed
     chunked body got 500 with a traceback in the log (PUT data: 400); a

@@ -18,9 +18,9 @@ import msgpack
 import psutil
 import zmq
 
+from common.harness.procs import poll_until
 from ipc import protocol
 from tests.reliability.load import record, scaled
-from tests.support.procs import poll_until
 from tests.support.rosworker import RosWorker
 
 GARBAGE = scaled(10_000, 30_000)

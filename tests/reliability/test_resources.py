@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import threading
 
+from common.harness.procs import poll_until
 from ipc.client import RosWorkerClient
 from ipc.errors import IpcError
 from tests.reliability.load import (
@@ -27,7 +28,7 @@ from tests.reliability.load import (
     rss_mb,
     scaled,
 )
-from tests.support.procs import RosNode, poll_until
+from tests.support.rospub import RosNode
 
 REQUESTS = scaled(5_000, 100_000)
 WARMUP = scaled(1_000, 5_000)

@@ -25,6 +25,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from common.harness.procs import Proc, free_port, poll_until
 from ipc import protocol
 from ipc.client import RosWorkerClient
 from tests.reliability.load import (
@@ -37,7 +38,7 @@ from tests.reliability.load import (
     record,
     restarts_in,
 )
-from tests.support.procs import Proc, RosNode, free_port, poll_until
+from tests.support.rospub import RosNode
 
 BIN = Path(sys.executable).parent
 TOKEN = "reliability-token-0123456789abcdef"

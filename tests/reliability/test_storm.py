@@ -17,6 +17,7 @@ from __future__ import annotations
 import collections
 import json
 
+from common.harness.procs import poll_until
 from tests.reliability.load import (
     HealthProbe,
     Load,
@@ -27,7 +28,7 @@ from tests.reliability.load import (
     restarts_in,
     scaled,
 )
-from tests.support.procs import RosNode, poll_until
+from tests.support.rospub import RosNode
 
 CLIENTS = scaled(32, 64)
 DURATION = scaled(15, 60)

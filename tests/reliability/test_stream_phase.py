@@ -4,7 +4,7 @@ A 2 Hz topic streamed at ``slow`` (500 ms): its ticks follow the messages'
 arrivals, so a frame carries a message a few milliseconds after the gateway
 received it (on the interval's fixed grid it could be anywhere up to 500 ms),
 while the cadence stays one frame per interval with the latest value.  The
-unit tests (tests/rosworker/test_rosworker_stream_phase.py) pin the phase to the
+unit tests (tests/rosworker/data/test_rosworker_stream_phase.py) pin the phase to the
 millisecond; this one shows it on the real thing with a generous bound.  It is a
 timing claim (a 2 Hz publisher's jitter on a loaded machine moves a message past
 its tick), so it runs in ``make reliability``, alone, not in ``make test``.
@@ -15,36 +15,22 @@ from __future__ import annotations
 import statistics
 from datetime import datetime
 
-import pytest
 import requests
 
-from tests.support.gateway import Gateway
-from tests.support.procs import RosNode, poll_until
 from tests.support.sse import EventStream
+from tests.system.subscriptions.test_app_stream_sends import gw, robot  # noqa: F401 - fixtures (of APP ... below)
 
 APP = "phased"
 TOPIC = "/phased/level"
-
-
-@pytest.fixture(scope="module")
-def gw():
-    node = RosNode({"node": APP, "publish": [
-        {"topic": TOPIC, "type": "std_msgs/msg/Float64", "rate": 2, "counter": "data"}]}, timeout=60)
-    gateway = Gateway("--workers", "2", "--log-level", "warning")
-    try:
-        poll_until(lambda: gateway.get(f"/apps/{APP}/data{TOPIC}").json()["x-medkit"]["status"] == "data", 30,
-                   message="the robot's data")
-        yield gateway
-    finally:
-        gateway.stop()
-        node.stop()
+RATE = 2  # Hz
+GATEWAY = ("--workers", "2", "--log-level", "warning")
 
 
 def _ns(text: str) -> int:
     return int(datetime.fromisoformat(text.replace("Z", "+00:00")).timestamp() * 1e9)
 
 
-def test_a_slow_stream_frames_each_message_just_after_it_arrives(gw):
+def test_a_slow_stream_frames_each_message_just_after_it_arrives(gw):  # noqa: F811 - the fixture above
     r = requests.post(f"{gw.api}/apps/{APP}/cyclic-subscriptions", timeout=10, json={
         "resource": f"/api/v1/apps/{APP}/data{TOPIC}", "interval": "slow", "duration": 60})
     assert r.status_code == 201, r.text

@@ -19,8 +19,9 @@ import sys
 
 import requests
 
+from common.harness.procs import Proc, poll_until
 from tests.reliability.load import HealthProbe, memory, record, restarts_in, scaled
-from tests.support.procs import Proc, RosNode, poll_until
+from tests.support.rospub import RosNode
 
 STREAMS = scaled(300, 1000)
 SECONDS = scaled(10, 30)

@@ -25,8 +25,9 @@ import time
 import requests
 
 from bench.procs import cpu_seconds
+from common.harness.procs import Proc, poll_until
 from tests.reliability.load import HealthProbe, memory, record, restarts_in, scaled
-from tests.support.procs import Proc, RosNode, poll_until
+from tests.support.rospub import RosNode
 
 STREAMS = scaled(600, 5000)
 SECONDS = scaled(8, 30)

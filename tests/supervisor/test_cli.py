@@ -10,9 +10,9 @@ from pathlib import Path
 import psutil
 import pytest
 
+from common.harness.gateway import Gateway
+from common.harness.procs import REPO, Proc, free_port, poll_until
 from supervisor import cli
-from tests.support.gateway import Gateway
-from tests.support.procs import REPO, Proc, free_port, poll_until
 
 BIN = Path(sys.executable).parent
 
@@ -119,7 +119,7 @@ def test_creates_the_runtime_dir_0700_and_honours_config_file_and_flags(tmp_path
 
 
 def test_gateway_helper_contract():
-    """tests/support/gateway.py's contract: health reports worker_alive once started."""
+    """common/harness/gateway.py's contract: health reports worker_alive once started."""
     gw = Gateway("--workers", "1")
     try:
         r = gw.get("/health")

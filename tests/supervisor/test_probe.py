@@ -12,10 +12,11 @@ from pathlib import Path
 
 import pytest
 
+from common.harness.procs import REPO, Proc, poll_until
 from ipc import protocol
 from ipc.client import RosWorkerClient
 from ipc.errors import IpcError
-from tests.support.procs import REPO, Proc, poll_until, publisher
+from tests.support.rospub import publisher
 
 BIN = Path(sys.executable).parent
 TOPIC = "/probe_test/level"

@@ -19,10 +19,11 @@ import psutil
 import pytest
 import requests
 
+from common.harness.gateway import Gateway
+from common.harness.procs import Proc, free_port, poll_until
 from ipc import protocol
 from ipc.client import RosWorkerClient
-from tests.support.gateway import Gateway
-from tests.support.procs import Proc, free_port, poll_until, publisher
+from tests.support.rospub import publisher
 
 BIN = Path(sys.executable).parent
 TOPIC = "/sup_test/temperature"

@@ -13,7 +13,7 @@ import sys
 
 import psutil
 
-from tests.support.gateway import Gateway
+from common.harness.gateway import Gateway
 
 
 def test_the_gateway_and_its_children_run_with_the_hard_limit():

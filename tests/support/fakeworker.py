@@ -137,7 +137,7 @@ class FakeWorker:
             self._thread.join(timeout=5)
 
     def close(self) -> None:
-        from app import rosclient
+        from app.core import rosclient
 
         for app in self.apps:
             app.extensions[rosclient.EXTENSION].close()
@@ -239,7 +239,7 @@ class FakeWorker:
         reply = getattr(self, "replies", {}).get(cmd)
         if reply is not None:
             return reply(args) if callable(reply) else reply
-        # logs (issue 22): one line of each node asked, and a configuration echoed (rosworker/logs.py)
+        # logs (issue 22): one line of each node asked, and a configuration echoed (rosworker/logs/book.py)
         if cmd == "logs":
             return {"rows": [[n, 1700000000, 5, 30, fqn.lstrip("/").replace("/", "."), "a line", "f.py", "fn", 3]
                              for n, fqn in enumerate(args.get("nodes") or [], 1)]}
@@ -274,7 +274,7 @@ class FakeWorker:
 
 
     def _subscription(self, cmd: str, args: dict[str, Any]) -> Any:
-        """The ``sub_*`` commands over a plain dict (the real registry is rosworker/streams.py)."""
+        """The ``sub_*`` commands over a plain dict (the real registry is rosworker/subscriptions/registry.py)."""
         owner = (args.get("collection"), args.get("entity_id"))
         if cmd == "sub_create":
             sub_id = f"sub_{len(self.subscriptions) + 1:016x}"
@@ -303,7 +303,7 @@ class FakeWorker:
             return {}
         return IpcError("unknown-command", f"unknown command {cmd!r}")
 
-    # Triggers: the ``trig_*`` commands over a plain dict (the real registry is rosworker/triggers.py).
+    # Triggers: the ``trig_*`` commands over a plain dict (the real registry is rosworker/triggers/registry.py).
     def _trigger(self, cmd: str, args: dict[str, Any]) -> Any:
         triggers = self.__dict__.setdefault("triggers", {})
         owner = (args.get("collection"), args.get("entity_id"))

@@ -1,12 +1,12 @@
 """The fleet for tests (issue 34): the token, the processes, certificates.
 
-The processes are the bench's and the harness's, shared (``bench/fleetsim.py``'s :class:`Router` and
-:class:`SimFleet`, ``tests/support/gateway.py``'s :class:`FleetGateway`):
+The processes are the harness's, shared with the bench (``common/harness/fleetsim.py``'s :class:`Router`
+and :class:`SimFleet`, ``common/harness/gateway.py``'s :class:`FleetGateway`):
 
 - :class:`Router`: ``sovd-zenoh-router`` on a free loopback port (``ready <zid>`` once it listens).
 - :class:`FleetGateway`: ``sovd-gateway --fleet-aggregate``; healthy once ``/health`` says its fleet
   link answers (it has no ROS worker to wait for).
-- :class:`SimFleet`: ``bench/fleetsim.py``'s simulated robots, steered line by line.
+- :class:`SimFleet`: ``common/harness/fleetsim.py``'s simulated robots, steered line by line.
 - :func:`make_pki`: a CA and certificates signed by it (``cryptography``), for the TLS tests.
 """
 
@@ -14,9 +14,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from bench.fleetsim import Router, SimFleet
-
-from .gateway import FleetGateway
+from common.harness.fleetsim import Router, SimFleet
+from common.harness.gateway import FleetGateway
 
 __all__ = ["AUTH", "TOKEN", "FleetGateway", "Router", "SimFleet", "make_pki"]
 

@@ -1,7 +1,7 @@
 """Validating samples against the gateway's schemas, whose floats may be "NaN", "Infinity", "-Infinity".
 
 A float's schema is ``{"type": "number", "anyOf": [{"type": "number"}, {"type": "string", "enum":
-["NaN", "Infinity", "-Infinity"]}]}`` (rosworker/schema.py): ``type`` as medkit's, for the form
+["NaN", "Infinity", "-Infinity"]}]}`` (rosworker/ros/schema.py): ``type`` as medkit's, for the form
 builders that read it, and the anyOf for the strings a non-finite float is written as.  A stock
 JSON Schema validator applies ``type`` first and refuses those strings; :func:`validate` is one whose
 ``number`` also takes them, as the README tells a client to do.

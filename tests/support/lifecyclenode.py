@@ -20,7 +20,7 @@ import json
 import sys
 import threading
 
-from bench import rosmain
+from common.harness import rosmain
 
 
 def main() -> None:

@@ -19,9 +19,9 @@ import subprocess
 import sys
 import threading
 
-from bench import rosmain
+from common.harness import rosmain
+from common.harness.procs import REPO, Proc, poll_until
 
-from .procs import REPO, Proc, poll_until
 from .rospub import _assign, _load
 
 

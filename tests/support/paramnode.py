@@ -30,7 +30,7 @@ import sys
 import threading
 import time
 
-from bench import rosmain
+from common.harness import rosmain
 
 
 def _value(value):

@@ -27,7 +27,7 @@ import json
 import sys
 import time
 
-from bench import rosmain
+from common.harness import fibonacci, rosmain
 
 ABORT_ORDER = 13
 
@@ -77,29 +77,15 @@ def main() -> None:
         cls = _load(item["type"])
         step = float(item.get("step", 0.1))
 
-        def execute(goal_handle, cls=cls, step=step):
-            order = goal_handle.request.order
-            feedback = cls.Feedback()
-            sequence = [0, 1]
-            for i in range(1, max(1, order)):
-                deadline = time.monotonic() + step
-                while time.monotonic() < deadline:
-                    if goal_handle.is_cancel_requested:
-                        goal_handle.canceled()
-                        result = cls.Result()
-                        result.sequence = sequence
-                        return result
-                    time.sleep(0.01)
-                if order == ABORT_ORDER:
-                    goal_handle.abort()
-                    return cls.Result()
-                sequence.append(sequence[i] + sequence[i - 1])
-                feedback.sequence = sequence
-                goal_handle.publish_feedback(feedback)
-            goal_handle.succeed()
-            result = cls.Result()
-            result.sequence = sequence
-            return result
+        async def pause(goal_handle, step=step):
+            """``step`` seconds on this executor thread, or less once a cancel is requested."""
+            deadline = time.monotonic() + step
+            while time.monotonic() < deadline and not goal_handle.is_cancel_requested:
+                time.sleep(0.01)
+
+        async def execute(goal_handle, cls=cls, pause=pause):
+            return await fibonacci.execute(goal_handle, cls, lambda: pause(goal_handle),
+                                           aborts=lambda order: order == ABORT_ORDER)
 
         keep.append(ActionServer(
             node, cls, item["name"], execute_callback=execute, callback_group=group,

@@ -16,6 +16,9 @@ numeric field that is incremented on every publish so tests can tell samples
 apart.  ``raw`` (hex) publishes those bytes as the serialized message instead,
 for messages that do not deserialize.  SIGTERM destroys the node cleanly so
 that it leaves the graph at once.
+
+From a test: :class:`RosNode` (this program in another process), :func:`publisher` (one node, one
+topic) and :func:`unique_topic`.
 """
 
 from __future__ import annotations
@@ -24,8 +27,10 @@ import array
 import importlib
 import json
 import sys
+import uuid
 
-from bench import rosmain
+from common.harness import rosmain
+from common.harness.procs import Proc
 
 
 def _load(type_name: str):
@@ -121,6 +126,34 @@ def main() -> None:
 
     print("READY", flush=True)
     rosmain.spin(node, stop)
+
+
+def unique_topic(name: str) -> str:
+    """``/t<8 hex>/name``: a topic no other test (or earlier run in the same domain) uses."""
+    return f"/t{uuid.uuid4().hex[:8]}/{name}"
+
+
+class RosNode(Proc):
+    """This program in another process: returns once it printed ``READY``."""
+
+    def __init__(self, spec: dict, timeout: float = 20.0, env: dict | None = None):
+        super().__init__([sys.executable, "-m", "tests.support.rospub", json.dumps(spec)], env=env,
+                         name=f"rosnode {spec.get('node')}")
+        self.wait_line(lambda line: line == "READY", timeout)
+
+    def echoed(self) -> list[dict]:
+        out = []
+        for line in self.output:
+            if line.startswith("{"):
+                out.append(json.loads(line))
+        return out
+
+
+def publisher(node: str, topic: str, type_: str, value: dict | None = None, rate: float = 10,
+              namespace: str = "/", **options) -> RosNode:
+    """One node publishing one topic: the common case."""
+    item = {"topic": topic, "type": type_, "rate": rate, "value": value or {}, **options}
+    return RosNode({"node": node, "namespace": namespace, "publish": [item]})
 
 
 if __name__ == "__main__":

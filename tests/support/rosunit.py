@@ -1,6 +1,6 @@
 """In-process pieces for unit tests of ``rosworker/``: a real ROS thread, and a node that is not rclpy's.
 
-``RosThread`` runs a real :class:`rosworker.executor.RosExecutor` loop (its work
+``RosThread`` runs a real :class:`rosworker.core.executor.RosExecutor` loop (its work
 socket bound in a temporary runtime dir, its timers, its wake-up pipe) on a
 thread of its own, and runs test code on that thread with :meth:`RosThread.call`,
 as the ROS worker runs everything of ``rosworker/`` on its one ROS thread:
@@ -10,7 +10,7 @@ as the ROS worker runs everything of ``rosworker/`` on its one ROS thread:
         ros.call(registry.create, ...)
 
 ``FakeNode`` answers the graph queries of ``rclpy.node.Node`` that
-``rosworker/graph.py`` makes, from tables a test edits (``nodes``, ``endpoints``).
+``rosworker/core/graph.py`` makes, from tables a test edits (``nodes``, ``endpoints``).
 The objects are built as ``rosworker/main.py`` builds them; the real process is
 tested through ``tests/support/rosworker.py`` and the gateway.
 """
@@ -29,8 +29,8 @@ CALL_TIMEOUT = 10.0  # seconds a call on the ROS thread may take before the test
 
 class RosThread:
     def __init__(self, runtime_dir, max_queue_depth: int = 64):
-        from rosworker.executor import RosExecutor
-        from rosworker.stats import Stats
+        from rosworker.core.executor import RosExecutor
+        from rosworker.core.stats import Stats
 
         self.runtime_dir = str(runtime_dir)
         self.zctx = zmq.Context()

@@ -8,10 +8,9 @@ import sys
 import tempfile
 from pathlib import Path
 
+from common.harness.procs import Proc, poll_until
 from ipc.client import RosWorkerClient
 from ipc.errors import IpcError
-
-from .procs import Proc, poll_until
 
 BIN = Path(sys.executable).parent
 SHADOW = Path(__file__).parent / "shadow"

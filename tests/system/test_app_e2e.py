@@ -17,11 +17,12 @@ import psutil
 import pytest
 import requests
 
-from app.entities import PARAM_NAMES, host_component_id
-from app.routes import unimplemented
+from app.core import unimplemented
+from app.core.entities import PARAM_NAMES, host_component_id
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 from tests.support import floats
-from tests.support.gateway import Gateway
-from tests.support.procs import RosNode, poll_until, publisher
+from tests.support.rospub import RosNode, publisher
 
 TEMP = "/powertrain/engine/temperature"
 PRESSURE = "/chassis/brakes/pressure"
@@ -49,10 +50,8 @@ def robot():
 
 
 @pytest.fixture(scope="module")
-def gw(robot):
-    gateway = Gateway("--allow-publish", "--api-token", TOKEN, "--sample-timeout", "3")
-    yield gateway
-    gateway.stop()
+def gw(robot, gateway):
+    return gateway("--allow-publish", "--api-token", TOKEN, "--sample-timeout", "3")
 
 
 def app_ids(gw) -> list[str]:

@@ -3,7 +3,7 @@
 A browser sends a page's "simple" cross-origin request (a POST declared
 ``text/plain``, a form) without asking the server first: no CORS preflight,
 so the gateway's CORS settings are never consulted.  The gateway refuses every
-JSON body not declared ``application/json`` (415, ``app/routes/bodies.py``), and
+JSON body not declared ``application/json`` (415, ``app/core/bodies.py``), and
 a request declared ``application/json`` or using PUT always takes a preflight,
 which a gateway without ``cors_origins`` refuses.
 
@@ -23,9 +23,10 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import pytest
 
+from common.harness.gateway import Gateway
+from common.harness.procs import poll_until
 from tests.support.browser import launch, require_chromium
-from tests.support.gateway import Gateway
-from tests.support.procs import RosNode, poll_until, unique_topic
+from tests.support.rospub import RosNode, unique_topic
 
 PAGE = b"""<!doctype html>
 <html><head><meta charset="utf-8"><title>another site</title></head><body>

@@ -13,7 +13,7 @@ from pathlib import Path
 import psutil
 import requests
 
-from tests.support.procs import REPO, free_port, poll_until
+from common.harness.procs import REPO, free_port, poll_until
 
 
 def test_demo_serves_live_data_and_ctrl_c_stops_everything_in_order():

@@ -7,8 +7,8 @@ import sys
 
 import requests
 
-from tests.support.gateway import Gateway
-from tests.support.procs import Proc, poll_until
+from common.harness.gateway import Gateway
+from common.harness.procs import Proc, poll_until
 
 
 def test_demo_calibration_service_and_action():

@@ -11,7 +11,7 @@ import tempfile
 
 import requests
 
-from tests.support.procs import REPO, free_port, poll_until
+from common.harness.procs import REPO, free_port, poll_until
 
 
 def test_the_demo_robots_logs_come_at_several_levels():

@@ -7,8 +7,9 @@ import time
 
 import requests
 
-from tests.support.gateway import Gateway
-from tests.support.procs import Proc, RosNode, poll_until
+from common.harness.gateway import Gateway
+from common.harness.procs import Proc, poll_until
+from tests.support.rospub import RosNode
 
 BASE = "/apps/temp_sensor/configurations"
 

@@ -17,8 +17,9 @@ import psutil
 import pytest
 import requests
 
-from tests.support.gateway import Gateway
-from tests.support.procs import REPO, Proc, free_port, poll_until, publisher
+from common.harness.gateway import Gateway
+from common.harness.procs import REPO, Proc, free_port, poll_until
+from tests.support.rospub import publisher
 from tests.support.sse import EventStream
 
 SITE = REPO / "systemd" / "nginx-sovd-gateway.conf"

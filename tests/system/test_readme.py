@@ -37,7 +37,7 @@ from pathlib import Path
 import pytest
 import requests
 
-from tests.support.procs import REPO, free_port, poll_until
+from common.harness.procs import REPO, free_port, poll_until
 
 README = REPO / "README.md"
 FENCE = re.compile(r"^(`{3,})([^`]*)$")   # CommonMark: no backtick in a fence's info string

@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 
 from common import settings as config
+from common.harness.procs import REPO
 from supervisor import cli, supervisor
-from tests.support.procs import REPO
 
 UNIT = REPO / "systemd" / "sovd-gateway.service"
 IN_CI = os.environ.get("CI", "").lower() == "true"

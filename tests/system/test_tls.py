@@ -14,7 +14,7 @@ import warnings
 import pytest
 import requests
 
-from tests.support.gateway import Gateway
+from common.harness.gateway import Gateway
 
 
 def certificate(directory) -> tuple[str, str]:
@@ -73,7 +73,7 @@ def test_https_answers_and_plain_http_gets_nothing(cert):
     gw = Gateway("--tls-cert", cert_path, "--tls-key", key_path)
     try:
         assert gw.url.startswith("https://")
-        r = gw.get("/")  # the certificate checked against the file (tests/support/gateway.py)
+        r = gw.get("/")  # the certificate checked against the file (common/harness/gateway.py)
         assert r.status_code == 200
         assert r.json()["tls"] == {"enabled": True, "min_version": "1.2"} and r.json()["capabilities"]["tls"] is True
         with pytest.raises(requests.exceptions.ConnectionError):

@@ -1,1 +1,0 @@
-"""SOVD REST routes, one blueprint per resource."""

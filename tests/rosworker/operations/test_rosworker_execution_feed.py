@@ -1,0 +1,126 @@
+"""rosworker/operations/feed.py, the ``execution`` sampler, with its collaborators faked.
+
+The same behaviour through the real gateway and action server is tests/system/subscriptions/test_feeds.py; this pins
+what a real run hits only by chance (a goal forgotten under a stream), and what a subscription's target
+may be at all (rosworker/subscriptions/registry.py, the core's samplers).
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import pytest
+
+from ipc.errors import IpcError
+from rosworker.core.executor import Timer
+from rosworker.core.samplers import SamplerRegistry
+from rosworker.operations import feed as feed_mod
+from rosworker.operations.feed import ExecutionFeed
+from rosworker.subscriptions.registry import Subscription, _target
+
+
+class Executor:
+    def __init__(self):
+        self.timers: list[Timer] = []
+
+    def call_later(self, delay, fn):
+        timer = Timer(delay, fn)
+        self.timers.append(timer)
+        return timer
+
+    def guarded(self, _where, fn, *args):
+        return fn(*args)
+
+    def fire(self):
+        """Run the one live timer (a feed keeps exactly one armed)."""
+        live = [t for t in self.timers if not t.cancelled]
+        self.timers = []
+        assert len(live) == 1, live
+        live[0].fn()
+
+
+class Events:
+    """The core's events channel: what the feed publishes."""
+
+    def __init__(self):
+        self.frames: list[tuple[bytes, dict, bytes]] = []
+
+    def publish(self, key, meta, data=b"{}"):
+        self.frames.append((key, meta, data))
+
+
+def sub(kind, target, interval="fast"):
+    return Subscription(id="sub_0123456789abcdef", collection="apps", entity_id="tuner", resource="/r",
+                        topic="", bytes="array", interval=interval, duration=60, created_at_ns=0, kind=kind,
+                        target=target)
+
+
+@pytest.fixture
+def world():
+    executor, events, goals, ended = Executor(), Events(), {}, []
+
+    def get(goal_id):
+        if goal_id not in goals:
+            raise IpcError("no-such-execution", "Execution not found", {"execution_id": goal_id})
+        return goals[goal_id]
+
+    feed = ExecutionFeed(SimpleNamespace(executor=executor, events=events), SimpleNamespace(get=get))
+
+    def watch(s):
+        def end():
+            ended.append(s.id)
+            feed.unwatch(s)   # as the registry does: the subscription goes
+        feed.watch(s, end)
+
+    return SimpleNamespace(executor=executor, events=events, goals=goals, feed=feed, ended=ended, watch=watch)
+
+
+def test_a_finished_goal_repeats_its_last_frame_then_ends(world, monkeypatch):
+    goal = SimpleNamespace(done=False, wire=lambda: {"id": "g", "status": "running"})
+    world.goals["g"] = goal
+    s = sub("execution", {"goal": "g", "operation_id": "fib"})
+    world.feed.check(s)
+    world.watch(s)
+    world.executor.fire()
+    assert "last" not in world.events.frames[-1][1]
+    goal.done = True
+    monkeypatch.setattr(feed_mod, "FINISHED_LINGER", 0.0)
+    world.executor.fire()
+    assert world.events.frames[-1][1]["last"] is True and world.ended == []
+    world.executor.fire()
+    assert world.events.frames[-1][1]["last"] is True and world.ended == [s.id]
+    assert [t for t in world.executor.timers if not t.cancelled] == []  # no tick after the end
+
+
+def test_a_goal_forgotten_under_its_stream_ends_it_with_an_error(world):
+    world.goals["g"] = SimpleNamespace(done=False, wire=lambda: {"id": "g"})
+    s = sub("execution", {"goal": "g"})
+    world.watch(s)
+    del world.goals["g"]
+    world.executor.fire()
+    meta = world.events.frames[-1][1]
+    assert meta["last"] is True and meta["error"]["code"] == "no-such-execution"
+    assert world.ended == [s.id]
+
+
+@pytest.mark.parametrize("target,code", [({"goal": "nope"}, "no-such-execution"), ({}, "bad-request")])
+def test_check_refuses_an_execution_it_cannot_follow(world, target, code):
+    with pytest.raises(IpcError) as info:
+        world.feed.check(sub("execution", target))
+    assert info.value.code == code
+
+
+@pytest.mark.parametrize("target", [{"node": "/t", "name": "x", "id": "x" * 5000}, {str(i): "x" for i in range(9)},
+                                    {"a": 1}, ["goal"]])
+def test_a_target_is_a_few_short_strings_whatever_the_kind(target):
+    with pytest.raises(IpcError) as info:
+        _target(target)
+    assert info.value.code == "bad-request"
+
+
+def test_a_kind_no_family_streams_is_refused():
+    samplers = SamplerRegistry()
+    samplers.register("execution", object())
+    with pytest.raises(IpcError) as info:
+        samplers.get("topic")
+    assert info.value.code == "bad-request" and "'execution'" in info.value.message
