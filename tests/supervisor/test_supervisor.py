@@ -300,7 +300,11 @@ def test_worker_killed_under_load_comes_back(temperature_pub):
         os.kill(old, signal.SIGKILL)
         poll_until(lambda: alive_again(gw, old), 30, interval=0.1, message="ROS worker back")
         before = len(results)
-        poll_until(lambda: len(results) >= before + 20, 30, message="load after the restart")
+        # the new worker answers once it has settled and the sample's topic is pooled again: wait for that
+        poll_until(lambda: any(r[2] == 200 for r in results[before:]), 30, interval=0.1,
+                   message="a 200 from the restarted worker")
+        back = len(results)
+        poll_until(lambda: len(results) >= back + 20, 30, message="load after the restart")
         stop.set()
         for t in threads:
             t.join(30)
