@@ -6,6 +6,7 @@ import os
 import shutil
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import psutil
@@ -14,6 +15,11 @@ import requests
 from .procs import Proc, free_port, poll_until
 
 BIN = Path(sys.executable).parent
+PORT_ATTEMPTS = 3
+
+
+class PortTaken(Exception):
+    """Another server listens on the port a gateway was started on."""
 SECRET_FLAGS = {"--api-token": "SOVD_API_TOKEN"}
 
 
@@ -34,11 +40,9 @@ class Gateway(Proc):
                 at = args.index(flag)
                 env[variable] = args[at + 1]
                 del args[at:at + 2]
-        self.port = free_port()
         # TLS (--tls-cert): requests check the server's certificate against that file.
         self.verify = args[args.index("--tls-cert") + 1] if "--tls-cert" in args else True
-        self.url = f"{'https' if '--tls-cert' in args else 'http'}://127.0.0.1:{self.port}"
-        self.api = self.url + "/api/v1"
+        self.scheme = "https" if "--tls-cert" in args else "http"
         # Under require_auth_for=all, /health wants a token: the legacy api_token is an admin's.
         token = env.get("SOVD_API_TOKEN")
         self.health_headers = {"Authorization": f"Bearer {token}"} if token else {}
@@ -50,20 +54,66 @@ class Gateway(Proc):
         self._own_state = self.state_dir is None
         if self._own_state:
             self.state_dir = tempfile.mkdtemp(prefix="sovd-state-")
-            args = (*args, "--state-dir", self.state_dir)
-        argv = [str(BIN / "sovd-gateway"), "--bind", f"127.0.0.1:{self.port}",
-                "--runtime-dir", self.runtime_dir, *args]
-        super().__init__(argv, env=env, name="sovd-gateway", log_path=log_path)
-        try:
-            poll_until(self._healthy, timeout, interval=0.1, message="gateway health")
-        except AssertionError:
-            output = self.tail(60)
-            self.stop()
-            raise AssertionError("gateway did not become healthy; output:\n" + output) from None
+            args = [*args, "--state-dir", self.state_dir]
+        # A free port is free only when it is chosen: a gateway that another test started at the
+        # same moment may take it first, and then answers this one's health check. Whether the
+        # listener is this gateway's own is checked, and the start is tried again on a new port.
+        for attempt in range(PORT_ATTEMPTS):
+            self.port = free_port()
+            self.url = f"{self.scheme}://127.0.0.1:{self.port}"
+            self.api = self.url + "/api/v1"
+            argv = [str(BIN / "sovd-gateway"), "--bind", f"127.0.0.1:{self.port}",
+                    "--runtime-dir", self.runtime_dir, *args]
+            super().__init__(argv, env=env, name="sovd-gateway", log_path=log_path)
+            try:
+                self._wait_ready(timeout)
+            except PortTaken:
+                self._stop_process()
+                if attempt + 1 < PORT_ATTEMPTS:
+                    continue
+                self.stop()
+                raise AssertionError(f"every port tried was taken by another server ({PORT_ATTEMPTS} tries)") from None
+            except AssertionError:
+                output = self.tail(60)
+                self.stop()
+                raise AssertionError("gateway did not become healthy; output:\n" + output) from None
+            return
+
+    def _stop_process(self) -> None:
+        super().stop()
+
+    def _wait_ready(self, timeout: float) -> None:
+        """Until :meth:`_healthy`, and the listener is this gateway's (else :class:`PortTaken`)."""
+        deadline = time.monotonic() + timeout
+        last_error: Exception | None = None
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                output = self.tail(60)
+                if "address already in use" in output:
+                    raise PortTaken(self.port)
+                raise AssertionError(f"sovd-gateway exited with {self.proc.returncode}:\n{output}")
+            try:
+                ready = self._healthy()
+            except Exception as exc:  # not up yet
+                last_error, ready = exc, False
+            if ready:
+                if self._listens_here():
+                    return
+                raise PortTaken(self.port)
+            time.sleep(0.1)
+        raise AssertionError(f"timed out after {timeout} s waiting for gateway health"
+                             + (f" (last error: {last_error!r})" if last_error else ""))
+
+    def _listens_here(self) -> bool:
+        """Whether the process listening on this gateway's port is the gateway or one of its children."""
+        ours = {self.pid, *(p.pid for p in self._children(recursive=True))}
+        for conn in psutil.net_connections(kind="tcp"):
+            if conn.status == psutil.CONN_LISTEN and conn.laddr and conn.laddr.port == self.port:
+                if conn.pid in ours:
+                    return True
+        return False
 
     def _healthy(self) -> bool:
-        if self.proc.poll() is not None:
-            raise AssertionError(f"sovd-gateway exited with {self.proc.returncode}:\n" + self.tail(60))
         r = requests.get(self.api + "/health", timeout=2, headers=self.health_headers, verify=self.verify)
         return r.status_code == 200 and r.json()["x-medkit-subscription-executor"]["worker_alive"]
 
@@ -112,9 +162,9 @@ class Gateway(Proc):
         poll_until(both, 30, interval=0.01, message="a connection to each HTTP worker")
         return sessions
 
-    def _children(self) -> list[psutil.Process]:
+    def _children(self, recursive: bool = False) -> list[psutil.Process]:
         try:
-            return psutil.Process(self.pid).children()
+            return psutil.Process(self.pid).children(recursive=recursive)
         except psutil.NoSuchProcess:
             return []
 
@@ -152,8 +202,6 @@ class FleetGateway(Gateway):
     (it has no ROS worker to wait for)."""
 
     def _healthy(self) -> bool:
-        if self.proc.poll() is not None:
-            raise AssertionError(f"sovd-gateway exited with {self.proc.returncode}:\n" + self.tail(60))
         r = requests.get(self.api + "/health", timeout=2)
         return r.status_code == 200 and r.json()["x-medkit-fleet"]["link_alive"]
 

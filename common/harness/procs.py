@@ -82,10 +82,47 @@ def poll_until(predicate: Callable[[], object], timeout: float, interval: float 
                          + (f" (last error: {last_exc!r})" if last_exc else ""))
 
 
+PORT_LOCK_DIR = "/tmp/sovd-gateway-test-ports"
+PORT_BLOCKS = range(12000, 32000, 200)  # below the kernel's ephemeral range (32768-60999)
+_port_block: list = []  # [lock file, ports of the block, next index, pid], held for the life of the process
+
+
 def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    """A loopback TCP port that is free now, from a block of ports this process alone hands out.
+
+    The kernel's ``bind(0)`` may hand the same port to two test sessions (xdist workers) at once,
+    and either may take it first; a block held by ``flock`` (as a ROS domain is) and below the
+    ephemeral range (where outgoing connections take their ports) makes that impossible between
+    processes that use this function.
+    """
+    if _port_block and _port_block[3] != os.getpid():  # a forked child: a block of its own
+        _port_block.clear()
+    if not _port_block:
+        os.makedirs(PORT_LOCK_DIR, exist_ok=True)
+        starts = list(PORT_BLOCKS)
+        random.shuffle(starts)
+        for start in starts:
+            fh = open(os.path.join(PORT_LOCK_DIR, f"{start}.lock"), "w")  # noqa: SIM115 - held
+            try:
+                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                fh.close()
+                continue
+            _port_block.extend([fh, range(start, start + PORT_BLOCKS.step), 0, os.getpid()])
+            break
+        else:
+            raise RuntimeError(f"every block of test ports in {PORT_LOCK_DIR} is held")
+    ports = _port_block[1]
+    for _ in range(len(ports)):
+        port = ports[_port_block[2] % len(ports)]
+        _port_block[2] += 1
+        with socket.socket() as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue  # a server of something else, or a connection of ours in TIME_WAIT
+            return port
+    raise RuntimeError(f"no free port in {ports.start}..{ports.stop - 1}")
 
 
 class Proc:
