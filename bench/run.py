@@ -246,6 +246,10 @@ class Bench:
         # bulk data (issue 32): recording's CPU, warm samples during a write, a 200 MB download vs nginx
         from . import bulk_data as bulk_bench
         cases["bulk_data"] = lambda: bulk_bench.case(self)
+        # the ROS worker wakes only on events (issue 33): idle with a trigger and a goal open; trigger fan-out
+        from . import wakeups
+        cases["wake_idle"] = lambda: wakeups.case_idle(self)
+        cases["triggers"] = lambda: wakeups.case_triggers(self)
         only = set(self.args.only.split(",")) if self.args.only else set(cases)
         if "old" in only:
             only.add("warm")  # the old design is compared with the warm sample
@@ -697,7 +701,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="extra sovd-gateway flags, e.g. '--workers 3' (recorded in the JSON)")
     parser.add_argument("--rounds", type=int, help="floor/warm rounds (default 3, quick 1)")
     parser.add_argument("--only", metavar="CASES", help="comma-separated subset of: warm (floor, warm "
-                        "sample and echo route), old, memory, image, cold, idle, streams, stream_image, sub_costs, operations, params, rosout, faults, fleet, auth, write_checks, bulk_data (for "
+                        "sample and echo route), old, memory, image, cold, idle, streams, stream_image, sub_costs, operations, params, rosout, faults, fleet, auth, write_checks, bulk_data, wake_idle, triggers (for "
                         "development; the table is "
                         "partial)")
     args = parser.parse_args(argv)

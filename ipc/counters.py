@@ -134,6 +134,8 @@ COUNTERS: tuple[Counter, ...] = (
     C("executor", "graph_events_received", COUNTER, "The data provider's, again (the contract has it in both)"),
     C("executor", "loop_errors", COUNTER, "Failures contained on the ROS thread outside any request",
       "sovd_ros_loop_errors"),
+    C("executor", "loop_wakeups", COUNTER, "Times the ROS thread woke (a request, a timer, a ROS event, a signal)",
+      "sovd_ros_loop_wakeups"),
     # ---- x-medkit-streams: cyclic subscriptions (ROS worker) and SSE streams (every HTTP worker) ----
     C("streams", "active_subscriptions", GAUGE, "Cyclic subscriptions held now", "sovd_ros_subscriptions"),
     C("streams", "max_subscriptions", GAUGE, "Most cyclic subscriptions held at once (max_subscriptions)",

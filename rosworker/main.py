@@ -113,7 +113,6 @@ class Worker:
         # zmq, rclpy, numpy and orjson: imported after arming (see the module's docstring).
         import rclpy
         import zmq
-        from rclpy.node import Node
 
         from common.process import package_version
         from ipc.server import ControlServer
@@ -121,13 +120,14 @@ class Worker:
         from .core.executor import RosExecutor
         from .core.family import Core, discover
         from .core.graph import settle
+        from .core.node import GatewayNode
         from .core.stats import Stats
 
         cfg = self.cfg
         try:
             context = rclpy.Context()
             rclpy.init(context=context, signal_handler_options=rclpy.SignalHandlerOptions.NO)
-            node = Node(f"{cfg.gateway_name}_sub", context=context, start_parameter_services=False,
+            node = GatewayNode(f"{cfg.gateway_name}_sub", context=context, start_parameter_services=False,
                         enable_rosout=False)
         except Exception as exc:
             log.error("rclpy could not start: %s", exc)
@@ -140,6 +140,7 @@ class Worker:
             "started_at": time.time_ns(), "domain_id": context.get_domain_id(),
         })
         executor = RosExecutor(zctx, cfg.runtime_dir, stats, cfg.max_queue_depth, stop_when=self._signalled)
+        node.releasing = executor.release
         # A signal writes to the executor's wake-up pipe, so the loop wakes up and sees it at once.
         signal.set_wakeup_fd(executor.wakeup_fd, warn_on_full_buffer=False)
         core = Core(cfg, node, zctx, executor, stats, restart=self.restart)
@@ -153,6 +154,7 @@ class Worker:
                 started.append(family)
                 handlers.update(family.commands)
             executor.serve(handlers)
+            executor.use_waiter(context)
             # Discovery settles before the sockets are bound (core/graph.py: what it waits for).
             settle(node, set(core.restart_state.loaded("nodes")), SETTLE_MIN if self.restart else 0.0,
                    SETTLE_QUIET, SETTLE_MAX, stop=self._signalled)

@@ -107,6 +107,11 @@ class SharedSubscription:
     def profile(self) -> QoSProfile | None:
         return self._tap.profile
 
+    @property
+    def waitable(self):
+        """The recorder's rclpy subscription (None while it has none): what the waiter waits on."""
+        return self._tap.sub
+
 
 class Ring:
     """Messages as taken, ``(received_ns, published_ns, channel, cdr)``, oldest first; bounded twice."""

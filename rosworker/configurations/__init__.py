@@ -28,7 +28,7 @@ class Configurations(Family):
             core.node, core.stats, defaults, timeout=cfg.parameter_service_timeout,
             negative_cache_s=cfg.parameter_negative_cache_s, max_clients=cfg.max_parameter_clients,
             idle_s=cfg.parameter_client_idle_s)
-        core.executor.add_poller("parameter clients", clients.active, clients.poll)
+        core.executor.add_poller("parameter clients", clients.waitables, clients.poll, clients.due)
         core.every(min(cfg.idle_sweep_tick, 1.0), clients.sweep_idle)
         commands = ParameterCommands(clients, defaults)
         core.samplers.register("parameter", ParameterFeed(core, clients, defaults, commands))

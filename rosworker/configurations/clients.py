@@ -23,8 +23,9 @@ when a new start of it is in the graph (``defaults.py``'s start keys).  A node
 whose services are not in the graph is answered at once.
 
 Everything runs on the ROS thread; responses are taken by :meth:`ParameterClients.poll`,
-which the executor runs while operations are open (``RosExecutor.add_poller``):
-nothing ever waits on this thread.  A SIGTERM answers the operations in flight
+which the executor runs when a client with requests open has a response, and at
+the operations' deadlines (``RosExecutor.add_poller``: :meth:`ParameterClients.waitables`,
+:meth:`ParameterClients.due`): nothing ever waits on this thread.  A SIGTERM answers the operations in flight
 ``shutdown`` (:meth:`ParameterClients.shutdown`), not their callers' deadline.
 
 The gateway's own node is answered by its own parameter service's callbacks,
@@ -57,6 +58,7 @@ SETTLE = 0.25
 READS = ("list", "describe", "get")   # requests that may be sent again: asking twice changes nothing
 RESEND_AFTER = 0.5                   # seconds a read waits for its answer before it is sent again
 MAX_SENDS = 3                        # times one read is sent at most
+MATCH_POLL = 0.002                   # seconds between looks at a service's match while a request waits
 
 Step = tuple[str, Any]                          # (service kind, request)
 Operation = Generator[Step | list[Step], Any, Any]
@@ -114,16 +116,37 @@ class ParameterClients:
         self.own_fqn = (ns.rstrip("/") + "/" + node.get_name()) if ns != "/" else "/" + node.get_name()
         self.pool = ClientPool(node, stats, max_clients=max_clients, idle_s=idle_s)
         self._ops: set[Op] = set()
+        self.polled = 0.0  # when poll() last ran: what due() counts from
         self._line: collections.deque[Op] = collections.deque()  # operations waiting for a client set
         # fqn -> (monotonic time until which it is answered at once, the start keys of the node that did not answer)
         self._unavailable: dict[str, tuple[float, frozenset]] = {}
 
     # ---- executor hooks -------------------------------------------------------------------
-    def active(self) -> bool:
-        return bool(self._ops)
+    def waitables(self) -> list:
+        """The clients with requests awaiting an answer (late ones too): their responses wake the ROS thread."""
+        return [client for clients in self.pool.sets() for kind, client in clients.clients.items()
+                if clients.pending[kind]]
+
+    def due(self) -> float | None:
+        """When :meth:`poll` must run without a response: soon while a request waits for its service to
+        match (or an operation for a client set); else the first deadline, limit or read to send again."""
+        if not self._ops:
+            return None
+        if self._line:
+            return self.polled + MATCH_POLL
+        due = math.inf
+        for op in self._ops:
+            if op.unsent:
+                return self.polled + MATCH_POLL
+            due = min(due, op.limit, op.deadline if op.deadline is not None else math.inf)
+            for i, sent in op.sent.items():
+                if sent[0][0] in READS and len(sent) < MAX_SENDS:
+                    due = min(due, op.sent_at[i] + RESEND_AFTER)
+        return due if due != math.inf else None
 
     def poll(self) -> None:
         """Take every response that came, send what waited for its service, end what ran out of time."""
+        self.polled = time.monotonic()
         for clients in self.pool.sets():
             self._take(clients)
         for op in list(self._line):  # first come, first served, as client sets come free

@@ -23,7 +23,7 @@ from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters
 from ipc.errors import IpcError
 
 from ..core import args
-from ..core.executor import Task
+from ..core.task import Task
 from .clients import Operation, ParameterClients, Step
 from .defaults import Defaults, Record
 from .values import descriptor_json, refused, same_value, to_value, type_name, value_json

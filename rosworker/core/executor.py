@@ -12,19 +12,23 @@ own (``ipc/server.py``), so they never wait behind ROS work, however long the
 queue or the task that runs.  Sent to the work socket, they are refused
 (``bad-request``) as soon as they are read.
 
-Sleeping: in one ``zmq.Poller.poll`` over the work socket and a wake-up pipe
-(written by :meth:`RosExecutor.stop`, which is async-signal-safe, by
-:meth:`RosExecutor.post`, and by ``signal.set_wakeup_fd`` when a signal comes:
-the worker's handler only records it, and ``stop_when`` tells the loop), with
-the next timer as the timeout.  While callers wait for the first message of a
-cold topic the timeout is at most ``COLD_POLL`` and each cold subscription is
-tried (``take``) on every round; so no rcl wait set and no guard condition
-are needed, and a pooled topic costs nothing between reads.
+Sleeping: in one ``zmq.Poller.poll`` over the work socket, the readers' sockets
+and a wake-up pipe (written by :meth:`RosExecutor.stop`, which is
+async-signal-safe, by :meth:`RosExecutor.post`, by ``signal.set_wakeup_fd``
+when a signal comes: the worker's handler only records it, and ``stop_when``
+tells the loop; and by the waiter), with the next timer, or the next time a
+poller asked for, as the timeout.  Nothing wakes it on a clock.
 
-Pieces that wait on rclpy client handles (services, actions, parameters) register
-with :meth:`RosExecutor.add_poller`: while one has work open, the loop wakes every
-``COLD_POLL`` s and lets it ``take`` what came; no rclpy executor, no spin, nothing
-blocks this thread on a future.
+Waking on ROS events: the waiter thread (``waiter.py``: who waits on what, and
+why it is race-free) sleeps in an rcl wait set over the entities that have
+work open, which this thread names before each sleep (:meth:`RosExecutor._arm`):
+the subscriptions of the cold topics callers wait on (:meth:`RosExecutor.watch_cold`)
+and the entities of the pollers (:meth:`RosExecutor.add_poller`: trigger
+subscriptions; service, action and parameter clients with calls open).  When
+one is ready it writes to the wake-up pipe, and this thread runs the cold
+topics' ``on_ready`` and every poller's ``poll``, which ``take`` what came.
+A pooled topic without a reader is in no wait set: it costs nothing per
+message.  ``loop_wakeups`` in the stats counts the rounds of this loop.
 
 Timers (graph polling, idle sweep, cold-wait deadlines, stream ticks,
 publishers waiting for their subscribers) run on the same thread from a heap.
@@ -53,7 +57,7 @@ import os
 import threading
 import time
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import Any, NamedTuple
 
 import zmq
 
@@ -61,63 +65,24 @@ from ipc import protocol
 from ipc.errors import IpcError
 from ipc.server import Request, bind_router, read_requests, send_frames
 
-from .requestlog import bound
+from .requestlog import SlowCommands, bound
 from .stats import Stats
+from .task import Task, Timer
+from .waiter import Waiter
 
 log = logging.getLogger("sovd.rosworker.executor")
 
-IDLE_WAIT_CAP = 1.0   # seconds: the loop wakes at least this often
-COLD_POLL = 0.002     # seconds between looks at cold subscriptions while somebody waits on one
+IDLE_WAIT_CAP = 1.0   # seconds: the loop wakes at least this often (its stop checks)
+NO_WAITER_POLL = 0.002  # seconds between looks at waited entities when no waiter runs (unit tests)
 CLOSE_GRACE = 0.25    # seconds the socket stays open after the last replies (see linger())
 ERROR_LOG_EVERY = 10.0  # seconds: one traceback per place and period, the rest are counted
-SLOW_COMMAND = 0.5      # seconds from receipt to answer past which a command is logged (info)
-SLOW_LOG_PER_S = 20     # at most this many such lines per second; the rest are counted only
 
 
-class Task:
-    """One queued command; ``reply``/``fail`` may be called once, on the ROS thread.
-
-    ``request_id`` is the HTTP request's id when the HTTP side sent one: log
-    lines written while the task runs or is answered carry it (``requestlog.py``).
-    """
-
-    __slots__ = ("cmd", "args", "identity", "rid", "deadline", "received", "request_id", "answered",
-                 "counted", "_executor")
-
-    def __init__(self, executor: RosExecutor, request: Request, deadline: float, received: float):
-        self.cmd = request.cmd
-        self.args = request.args
-        self.identity = request.identity
-        self.rid = request.rid
-        self.deadline = deadline
-        self.received = received
-        self.request_id = request.request_id
-        self.answered = False
-        self.counted = False  # in stats.commands: before its reply goes, so a later ``stats`` sees it
-        self._executor = executor
-
-    def reply(self, result: dict[str, Any]) -> None:
-        if not self.answered:
-            self.answered = True
-            self._executor._send(self, {"v": protocol.VERSION, "id": self.rid, "ok": True, "result": result})
-
-    def fail(self, error: IpcError) -> None:
-        if not self.answered:
-            self.answered = True
-            self._executor._send(self, {"v": protocol.VERSION, "id": self.rid, "ok": False,
-                                        "error": error.to_wire()})
-
-
-class Timer:
-    __slots__ = ("when", "fn", "cancelled")
-
-    def __init__(self, when: float, fn: Callable[[], None]):
-        self.when = when
-        self.fn = fn
-        self.cancelled = False
-
-    def cancel(self) -> None:
-        self.cancelled = True
+class Poller(NamedTuple):
+    where: str
+    waitables: Callable[[], list]
+    poll: Callable[[], None]
+    due: Callable[[], float | None]
 
 
 class RosExecutor:
@@ -140,16 +105,17 @@ class RosExecutor:
         self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
         self._last_reply = 0.0
         self._error_logged: dict[str, float] = {}
-        self._slow_second = 0   # the second (monotonic) whose slow-command lines are counted
-        self._slow_logged = 0
+        self._slow = SlowCommands(log)
         self._handlers: dict[str, Callable[[Task], None]] = {}
-        # Entries that callers wait on, and what to do with one (see watch_cold).
+        # Entries that callers wait on, what to do with one, their subscriptions (see watch_cold).
         self._cold_entries: Callable[[], list] = lambda: []
         self._on_ready: Callable[[Any], None] = lambda entry: None
+        self._cold_waitables: Callable[[], list] = lambda: []
         self.on_idle: Callable[[], None] = lambda: None
-        # Pieces that wait on rclpy futures or handles (service, action, parameter clients):
-        # (name, active, poll), see add_poller.
-        self._pollers: list[tuple[str, Callable[[], bool], Callable[[], None]]] = []
+        # Pieces that take from rclpy entities (service, action, parameter clients, triggers):
+        # (where, waitables, poll, due), see add_poller.
+        self._pollers: list[Poller] = []
+        self._waiter: Waiter | None = None
         self._posted: collections.deque[Callable[[], None]] = collections.deque()
         # Other sockets the loop waits on: socket -> (name, what reads it), see add_reader.
         self._readers: dict[zmq.Socket, tuple[str, Callable[[], None]]] = {}
@@ -190,25 +156,40 @@ class RosExecutor:
         """The queued commands this executor runs, by name (before :meth:`run`)."""
         self._handlers = dict(handlers)
 
-    def watch_cold(self, entries: Callable[[], list], on_ready: Callable[[Any], None]) -> None:
-        """While ``entries()`` is not empty, ``on_ready(entry)`` is called for each on every round.
-
-        ``entries`` are what callers wait on (the pool's cold topics); the loop then polls
-        at most every ``COLD_POLL`` s (before :meth:`run`).
-        """
+    def watch_cold(self, entries: Callable[[], list], on_ready: Callable[[Any], None],
+                   waitables: Callable[[], list]) -> None:
+        """``entries()``: what callers wait on (the pool's cold topics), ``waitables()`` their subscriptions;
+        ``on_ready(entry)`` is called for each entry when one of those is ready (before :meth:`run`)."""
         self._cold_entries = entries
         self._on_ready = on_ready
+        self._cold_waitables = waitables
 
-    def add_poller(self, name: str, active: Callable[[], bool], poll: Callable[[], None]) -> None:
-        """While ``active()`` is true, ``poll()`` runs on every round and the loop wakes every ``COLD_POLL`` s.
+    def add_poller(self, name: str, waitables: Callable[[], list], poll: Callable[[], None],
+                   due: Callable[[], float | None] = lambda: None) -> None:
+        """A piece that takes from rclpy entities: ``poll()`` runs when one of ``waitables()`` is ready
+        (the entities with work open: an idle piece returns none and costs nothing), and when the
+        time ``due()`` returns (a ``time.monotonic()``, or None) has come: its deadlines, or a
+        server it waits to see matched (rclpy has no event for that).  Both are asked every round,
+        so they must be cheap.  ``name`` labels a failure of ``poll`` in the log (contained like a
+        timer's)."""
+        self._pollers.append(Poller(f"polling {name}", waitables, poll, due))
 
-        For pieces that wait on something the loop's sockets cannot wake it for: rclpy
-        client handles (a service response, an action's goal, feedback and status) are
-        read with ``take`` by ``poll``, as the pool reads cold topics.  ``active`` is
-        asked every round, so it must be cheap (a length); an idle piece costs nothing.
-        ``name`` labels a failure of ``poll`` in the log (contained like a timer's).
-        """
-        self._pollers.append((f"polling {name}", active, poll))
+    def use_waiter(self, context) -> None:
+        """Wake on ROS events through a waiter thread over ``context`` (ROS thread, before :meth:`run`).
+        Without one (unit tests without rclpy), waited entities are looked at every ``NO_WAITER_POLL`` s."""
+        self._waiter = Waiter(context, self._wake_from_waiter)
+        self._waiter.start()
+
+    def release(self, entity: Any) -> None:
+        """Before ``entity`` is destroyed (``node.py``): out of the waiter's wait set."""
+        if self._waiter is not None:
+            self._waiter.release(entity)
+
+    def _wake_from_waiter(self) -> None:
+        try:
+            os.write(self._wake_w, b"w")
+        except OSError:
+            pass  # the pipe is full (a wake-up is pending) or closed
 
     def add_reader(self, name: str, sock: zmq.Socket, on_readable: Callable[[], None]) -> None:
         """The loop also waits on ``sock`` and calls ``on_readable()`` when it has something to read
@@ -220,9 +201,6 @@ class RosExecutor:
     def remove_reader(self, sock: zmq.Socket) -> None:
         if self._readers.pop(sock, None) is not None and self._poller is not None:
             self._poller.unregister(sock)
-
-    def _polling(self) -> list[tuple[str, Callable[[], bool], Callable[[], None]]]:
-        return [p for p in self._pollers if p[1]()] if self._pollers else []
 
     def bind(self) -> None:
         """Bind the work socket (call on the ROS thread before :meth:`run`)."""
@@ -273,28 +251,7 @@ class RosExecutor:
                 frame = protocol.pack({"v": protocol.VERSION, "id": task.rid, "ok": False,
                                        "error": IpcError("internal", "reply could not be encoded").to_wire()})
             self._send_frame(task.identity, frame)
-            took = self._last_reply - task.received
-            if took >= SLOW_COMMAND:
-                self._log_slow(task, message, took)
-
-    def _log_slow(self, task: Task, message: dict, took: float) -> None:
-        """One info line per command answered after ``SLOW_COMMAND`` s (at most ``SLOW_LOG_PER_S``/s)."""
-        second = int(self._last_reply)
-        if second != self._slow_second:
-            self._slow_second, self._slow_logged = second, 0
-        self._slow_logged += 1
-        if self._slow_logged > SLOW_LOG_PER_S:
-            return
-        topic = task.args.get("topic") if isinstance(task.args, dict) else None
-        what = f"{task.cmd} {topic}" if isinstance(topic, str) else task.cmd
-        if message.get("ok"):
-            result = message.get("result") or {}
-            outcome = result.get("status", "ok") if isinstance(result, dict) else "ok"
-            if isinstance(result, dict) and result.get("reason"):
-                outcome += f" ({result['reason']})"
-        else:
-            outcome = f"error {(message.get('error') or {}).get('code')}"
-        log.info("slow command: %s answered after %d ms: %s", what[:300], int(took * 1000), outcome)
+            self._slow.answered(task.cmd, task.args, message, self._last_reply - task.received, self._last_reply)
 
     def _send_frame(self, identity: bytes, frame: bytes) -> None:
         self._last_reply = time.monotonic()
@@ -383,9 +340,30 @@ class RosExecutor:
             if self._router is not None and self._router.get(zmq.EVENTS) & zmq.POLLIN:
                 self._read()
 
-    def _wake_cold(self) -> None:
+    def _arm(self) -> tuple[bool, float | None, list[Poller]]:
+        """Name what the waiter waits on; whether anything is waited on, the pollers' next due time, and
+        the pollers with something open (the others have nothing to take)."""
+        waited = list(self._cold_waitables())
+        due = None
+        active = []
+        for poller in self._pollers:
+            entities = poller.waitables()
+            when = poller.due()
+            if entities or when is not None:
+                waited += entities
+                active.append(poller)
+            if when is not None and (due is None or when < due):
+                due = when
+        if self._waiter is not None:
+            self._waiter.arm(waited)
+        return bool(waited), due, active
+
+    def _take_ready(self, active: list[Poller]) -> None:
+        """Something waited on is ready (or due): the cold topics' and the open pollers' turn."""
         for entry in self._cold_entries():
             self.guarded("a cold-topic wake-up", self._on_ready, entry)
+        for poller in active:
+            self.guarded(poller.where, poller.poll)
 
     def run(self) -> None:
         """The ROS thread's loop, until :meth:`stop` or ``stop_when()``; then :meth:`linger`, :meth:`close`."""
@@ -394,11 +372,13 @@ class RosExecutor:
                 self._stopping.set()
                 break
             timeout = 0.0 if self._queue else self._next_timeout()
-            cold = bool(self._cold_entries())
-            polling = self._polling()
-            if cold or polling:
-                timeout = min(timeout, COLD_POLL)
+            waited, due, active = self._arm()
+            if due is not None:
+                timeout = min(timeout, max(0.0, due - time.monotonic()))
+            if waited and self._waiter is None:
+                timeout = min(timeout, NO_WAITER_POLL)
             events = dict(self._poller.poll(math.ceil(timeout * 1000)))
+            self.stats.loop_wakeups += 1
             if self._wake_r in events:
                 self._drain_pipe()
             if self._posted:
@@ -409,10 +389,9 @@ class RosExecutor:
                 if sock in events:
                     self.guarded(where, on_readable)
             self._run_timers()
-            if cold:
-                self._wake_cold()
-            for where, _, poll in polling:
-                self.guarded(where, poll)
+            if ((self._waiter.fired() if self._waiter is not None else waited)
+                    or (due is not None and time.monotonic() >= due)):
+                self._take_ready(active)
             self.drain()
             if self.stats.degraded and not self._queue:
                 self.stats.degraded = False  # idle again: the episode is over
@@ -443,7 +422,10 @@ class RosExecutor:
                 self.drain()
 
     def close(self) -> None:
-        """Close the work socket and the wake-up pipe (ROS thread, after :meth:`linger`)."""
+        """Stop the waiter; close the work socket and the wake-up pipe (ROS thread, after :meth:`linger`)."""
+        if self._waiter is not None:
+            self._waiter.stop()
+            self._waiter = None
         if self._router is not None:
             self._router.close(linger=0)
             self._router = None

@@ -47,13 +47,14 @@ from common import settings as config
 from . import args
 from .endpoints import Endpoints
 from .events import EventsChannel
-from .executor import RosExecutor, Task
+from .executor import RosExecutor
 from .graph import GraphMonitor
 from .notifier import ChangeNotifier
 from .samplers import SamplerRegistry
 from .state import RestartState
 from .stats import Stats
 from .store import Store
+from .task import Task
 from .topics import SharedTopics
 
 log = logging.getLogger("sovd.rosworker.core")

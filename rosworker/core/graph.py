@@ -31,8 +31,8 @@ from typing import Any
 
 from ipc.errors import IpcError
 
-from .executor import Task
 from .stats import Stats
+from .task import Task
 
 log = logging.getLogger("sovd.rosworker.graph")
 

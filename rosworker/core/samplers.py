@@ -37,8 +37,8 @@ from typing import Any, Protocol
 
 from ipc import events
 
-from .executor import Timer
 from .registry import Registry
+from .task import Timer
 
 
 class Sampler(Protocol):

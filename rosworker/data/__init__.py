@@ -46,7 +46,7 @@ class Data(Family):
         pool.shared_subscription = core.shared_topics.get
         core.shared_topics.attach(pool)
         # A look at each topic that callers wait on (its first message) on every round of the loop.
-        core.executor.watch_cold(pool.cold_entries, pool.on_ready)
+        core.executor.watch_cold(pool.cold_entries, pool.on_ready, pool.cold_waitables)
         if cfg.idle_safety_net:
             core.every(cfg.idle_sweep_tick, pool.sweep_idle)
             core.every(cfg.idle_sweep_tick, self.publishers.sweep_idle)

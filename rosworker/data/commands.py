@@ -22,7 +22,7 @@ from rclpy.exceptions import NameValidationException
 from ipc.errors import IpcError
 
 from ..core import args
-from ..core.executor import Task
+from ..core.task import Task
 from ..ros import msgtypes
 from ..ros.schema import default_value, schema
 from .pool import TopicPool

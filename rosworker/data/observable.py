@@ -4,8 +4,9 @@ Provided to the core's notifier (``core/notifier.py``) by the data family; an
 observer (a trigger) names a topic as its target.  Per topic, not per
 observer: a watched topic gets its own subscription (``KEEP_LAST``
 ``TRIGGER_DEPTH``, QoS matched to its publishers), apart from the pool's
-depth-1 one, so that every message is seen, not only the newest.  Each round of
-the loop takes what arrived, at most ``TAKES_PER_ROUND`` messages per topic and
+depth-1 one, so that every message is seen, not only the newest.  A message
+wakes the ROS thread (the subscription is in the waiter's wait set, ``core/waiter.py``);
+each round of the loop then takes what arrived, at most ``TAKES_PER_ROUND`` messages per topic and
 ``ROUND_BUDGET`` seconds in all (the rest wait in the subscription's queue for
 the next round, after the commands and timers: a busy topic cannot hold the
 thread; past its ``TRIGGER_DEPTH`` the middleware drops the oldest), converts
@@ -29,9 +30,10 @@ import orjson
 
 from ..core import args
 from ..core.endpoints import Endpoints
-from ..core.executor import RosExecutor, Timer
+from ..core.executor import RosExecutor
 from ..core.notifier import Observer
 from ..core.stats import Stats
+from ..core.task import Timer
 from ..ros import msgtypes, qos
 from ..ros.encode import to_json
 
@@ -69,13 +71,18 @@ class DataObservable:
         self.endpoints = endpoints
         self.stats = stats
         self.watches: dict[str, _TopicWatch] = {}
-        self.live: list[_TopicWatch] = []       # the watches with a subscription (polled every round)
+        self.live: list[_TopicWatch] = []       # the watches with a subscription (waited on)
         self._retry: Timer | None = None
         self._last_check = 0.0
-        executor.add_poller("data triggers", self.active, self.poll)
+        executor.add_poller("data triggers", self.waitables, self.poll, self.due)
 
-    def active(self) -> bool:
-        return bool(self.live)
+    def waitables(self) -> list:
+        """The watched topics' subscriptions: a message wakes the ROS thread."""
+        return [w.sub for w in self.live if w.sub is not None and w.observers] if self.live else []
+
+    def due(self) -> float | None:
+        """The next look at the watched topics' publishers' type (every ``GRAPH_CHECK`` s)."""
+        return self._last_check + GRAPH_CHECK if self.live else None
 
     def check_target(self, text: str) -> str:
         """A topic name (normalized), or ``invalid-topic``."""
@@ -158,7 +165,7 @@ class DataObservable:
                 if watch.sub is None:
                     self._arm_retry()
 
-    # ---- every round ------------------------------------------------------------------------------
+    # ---- when a message came -----------------------------------------------------------------------
     def poll(self) -> None:
         now = time.monotonic()
         if now - self._last_check >= GRAPH_CHECK:

@@ -52,8 +52,9 @@ from rclpy.serialization import deserialize_message
 from ipc.errors import IpcError
 
 from ..core.endpoints import Endpoints
-from ..core.executor import RosExecutor, Task, Timer
+from ..core.executor import RosExecutor
 from ..core.stats import Stats
+from ..core.task import Task, Timer
 from ..ros import msgtypes, qos
 from ..ros.encode import to_json
 
@@ -224,11 +225,18 @@ class TopicPool:
             self.cold.pop(entry.topic, None)
 
     def cold_entries(self) -> list[Entry]:
-        """The entries callers wait on (the executor looks at each on every round: on_ready)."""
+        """The entries callers wait on (the executor looks at each when one is ready: on_ready)."""
         return list(self.cold.values())
 
+    def cold_waitables(self) -> list:
+        """The subscriptions of the entries callers wait on (a recorded topic's: the recorder's)."""
+        if not self.cold:
+            return []
+        subs = (getattr(entry.sub, "waitable", entry.sub) for entry in self.cold.values())
+        return [sub for sub in subs if sub is not None]
+
     def on_ready(self, entry: Entry) -> None:
-        """A look at a cold entry (executor, every round while it has waiters)."""
+        """A look at a cold entry (executor, when a waited subscription is ready)."""
         if entry.sub is None:
             return
         self._take(entry)

@@ -35,8 +35,9 @@ import time
 from ipc.errors import IpcError
 
 from ..core.endpoints import Endpoints
-from ..core.executor import RosExecutor, Task, Timer
+from ..core.executor import RosExecutor
 from ..core.stats import Stats
+from ..core.task import Task, Timer
 from ..ros import msgtypes, qos
 from ..ros.decode import from_plain
 from .pool import TopicPool

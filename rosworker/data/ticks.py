@@ -41,7 +41,8 @@ Watches of the same phase (to the millisecond) share one timer.  The cadence
 is unchanged: one frame per interval with the latest value, whether or not it
 changed; a topic whose messages stop keeps ticking at its last phase; a watch
 moved to a new phase skips a tick that would come within half an interval of
-its last one.
+its last one.  A group's timer runs only while it has watches: with no stream
+open, nothing ticks.
 
 A watched topic is a ``(topic, bytes mode)`` at an interval, counted by the
 subscriptions that watch it: the last one gone, its watch goes.
@@ -108,12 +109,12 @@ class TopicTicks:
         # topic -> ((generation, epoch or -1), the answer a read would give): see the module's doc
         self._unpooled: dict[str, tuple[tuple[int, int], dict[str, Any]]] = {}
         self.watches: dict[str, dict[tuple[str, str], _Watch]] = {i: {} for i in events.INTERVALS}
-        # (interval, slot) -> the watches ticked together; slot None: the interval's grid (always timed)
+        # (interval, slot) -> the watches ticked together; slot None: the interval's grid (from _grid)
         self._groups: dict[tuple[str, int | None], dict[tuple[str, str], _Watch]] = {
             (i, None): {} for i in events.INTERVALS}
+        self._timed: set[tuple[str, int | None]] = set()   # the groups whose timer runs (none empty for long)
+        self._grid = time.monotonic()
         self._phases: dict[str, _Phase] = {}   # watched topic -> its phase
-        for interval, seconds in events.INTERVALS.items():
-            self._schedule(interval, None, time.monotonic() + seconds)
 
     # ---- the sampler ------------------------------------------------------------------------
     def check(self, sub: Any) -> None:
@@ -154,17 +155,20 @@ class TopicTicks:
         period = events.INTERVALS[interval]
         slot = None if anchor is None else int((anchor % period) * 1000)
         watch.slot = slot
-        group = self._groups.get((interval, slot))
-        if group is None:  # a new phase: its timer starts at the next tick time of the anchor
-            group = self._groups[(interval, slot)] = {}
+        group = self._groups.setdefault((interval, slot), {})
+        if (interval, slot) not in self._timed:  # its timer starts at the next tick time of its anchor
+            self._timed.add((interval, slot))
             now = time.monotonic()
-            self._schedule(interval, slot, anchor + -(-(now - anchor) // period) * period)
+            if anchor is None:
+                self._schedule(interval, slot, self._grid + max(1, -(-(now - self._grid) // period)) * period)
+            else:
+                self._schedule(interval, slot, anchor + -(-(now - anchor) // period) * period)
         group[key] = watch
 
     def _leave(self, interval: str, key: tuple[str, str], watch: _Watch) -> None:
         group = self._groups.get((interval, watch.slot))
         if group is not None:
-            group.pop(key, None)  # an empty phase group's timer ends at its next tick
+            group.pop(key, None)  # an empty group's timer ends at its next tick
 
     def _follow(self, topic: str, received_ns: int, scheduled: float, offset_s: float) -> None:
         """A tick of ``topic`` took the message received at ``received_ns`` (wall clock): phase the
@@ -199,16 +203,16 @@ class TopicTicks:
     def _tick(self, interval: str, slot: int | None, scheduled: float) -> None:
         period = events.INTERVALS[interval]
         group = self._groups.get((interval, slot))
-        if slot is not None and not group:  # every watch of this phase left it: its timer ends
-            self._groups.pop((interval, slot), None)
+        if not group:  # every watch of this group left it: its timer ends (a phase's group goes)
+            self._timed.discard((interval, slot))
+            if slot is not None:
+                self._groups.pop((interval, slot), None)
             return
         now = time.monotonic()
         following = scheduled + period
         if following <= now:  # late by more than a period: skip to the next slot ahead
             following = now + period - ((now - scheduled) % period)
         self._schedule(interval, slot, following)
-        if not group:
-            return
         stamp = time.time_ns()
         offset_s = stamp / 1e9 - now  # the wall clock minus the monotonic one: arrivals to ticks
         framed = False

@@ -1,9 +1,10 @@
 """Faults: the robot's ``/diagnostics`` as SOVD faults, kept in the state dir's store (``store.py``).
 
 One subscription to ``/diagnostics`` (``diagnostic_msgs/msg/DiagnosticArray``,
-reliable, depth ``DEPTH``), no callback: a timer on the ROS thread takes at
-most ``TAKE_PER_ROUND`` arrays or ``STATUSES_PER_ROUND`` statuses every
-``TAKE_EVERY`` s, so a flood of arrays costs bounded time per round and the
+reliable, depth ``DEPTH``), no callback: the ROS thread takes at most
+``TAKE_PER_ROUND`` arrays or ``STATUSES_PER_ROUND`` statuses when arrays come
+(``core/batched.py``: woken by the first, then at most every ``TAKE_EVERY`` s
+while they keep coming), and before each check of the timers, so a flood of arrays costs bounded time per round and the
 commands queued meanwhile are answered between rounds (the rest wait in the
 subscription's queue, whose depth bounds them: the oldest are dropped).
 
@@ -58,6 +59,7 @@ from typing import Any
 
 from ipc.errors import IpcError
 
+from ..core.batched import Batched
 from .events import FaultEvents
 from .model import (
     ACTIVE,
@@ -89,7 +91,8 @@ TAKE_PER_ROUND = 20        # arrays taken per round at most ...
 STATUSES_PER_ROUND = 500   # ... and statuses: a round stays short (tens of ms) whatever is sent; past
                            # that the subscription's queue (DEPTH) drops the oldest arrays
 STATUSES_PER_ARRAY = 1000  # statuses of one array looked at, at most
-TICK_EVERY = 0.1           # seconds between checks of the timers (confirm by time, stale)
+TICK_EVERY = 0.1           # seconds between checks of the timers (confirm by time, stale), at least ...
+TICK_IDLE = 1.0            # ... and at most (nothing can confirm or go stale sooner)
 PERSIST_EVERY = 1.0        # seconds between writes of a fault whose status did not change
 SEEN_PER_FAULT = 2         # statuses whose last report is kept: this many per max_faults
 SOURCES_MAX = 16           # reporting sources kept per fault
@@ -161,6 +164,7 @@ class FaultManager:
         from ..ros import msgtypes
 
         self.executor.call_later(TICK_EVERY, self._tick_round)
+        Batched(self.executor, TOPIC, lambda: self.sub, self._take_round, TAKE_EVERY)
         try:
             self.cls = msgtypes.load_type(TYPE)
             self.sub = self.node.create_subscription(self.cls, TOPIC, lambda _msg: None,
@@ -169,7 +173,6 @@ class FaultManager:
             log.error("faults: cannot subscribe to %s (%s): no new faults are seen; the stored ones are "
                       "still served", TOPIC, exc)
             return
-        self.executor.call_later(TAKE_EVERY, self._take_round)
 
     def shutdown(self) -> None:
         """Hand what is not written yet to the store (which the caller closes) and unsubscribe."""
@@ -179,26 +182,43 @@ class FaultManager:
             self.sub = None
 
     # ---- the timers ------------------------------------------------------------------------------------
-    def _take_round(self) -> None:
-        self.executor.call_later(TAKE_EVERY, self._take_round)
+    def _take_round(self) -> int:
+        """Take what came (within the round's budget); how many arrays were taken."""
         if self.sub is None:
-            return
+            return 0
         statuses = 0
+        arrays = 0
         for _ in range(TAKE_PER_ROUND):
             taken = self.sub.handle.take_message(self.cls, False)
             if taken is None:
                 self._drained = time.monotonic()  # everything that came before now has been taken
                 break
             self.arrays += 1
+            arrays += 1
             statuses += len(taken[0].status)
             self.executor.guarded("a /diagnostics array", self.on_array, taken[0])
             if statuses >= STATUSES_PER_ROUND:
                 break
+        return arrays
 
     def _tick_round(self) -> None:
-        self.executor.call_later(TICK_EVERY, self._tick_round)
+        self._take_round()  # what waits in the queue first: silence is judged against what was taken
         now = time.monotonic()
         self.tick(now if self.sub is None else min(now, self._drained))
+        self.executor.call_later(self._next_tick(now), self._tick_round)
+
+    def _next_tick(self, now: float) -> float:
+        """Seconds to the next check: the first confirmation or staleness that can come, within
+        [``TICK_EVERY``, ``TICK_IDLE``] (a quiet robot's gateway wakes once a second for its faults)."""
+        if any(record["status"] == PREFAILED for record in self.faults.values()):
+            return TICK_EVERY
+        first = now + TICK_IDLE
+        if self.stale_s:
+            first = min(first, now + self.stale_s / 4)  # a status first seen after this check
+            for seen in self.seen.values():
+                if not seen[3]:
+                    first = min(first, seen[0] + self.stale_s)
+        return max(TICK_EVERY, first - now)
 
     def tick(self, now: float) -> None:
         """Confirm by time; report as stale what has not been reported for ``stale_s`` s before ``now``

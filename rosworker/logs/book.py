@@ -3,8 +3,9 @@
 One subscription to ``/rosout`` (``rcl_interfaces/msg/Log``) with the QoS that
 rcl's rosout publishers offer (reliable, transient-local, keep-last 1000: a
 node's lines from before the gateway started, up to rcl's depth, are heard
-too).  Like the pool's, it is never spun: a timer on the ROS thread takes
-what came every ``DRAIN_EVERY`` s, at most ``TAKES_PER_ROUND`` messages a
+too).  Like the pool's, it is never spun: the ROS thread takes what came
+when lines come (``core/batched.py``: woken by the first, then at most every
+``DRAIN_EVERY`` s while they keep coming), at most ``TAKES_PER_ROUND`` messages a
 round, so a storm of log lines costs bounded CPU (past that rate DDS keeps the
 newest ``ROSOUT_DEPTH`` lines and drops the oldest; the rounds that hit the
 budget are counted in ``logs_saturated_rounds``).  A message is taken as CDR and
@@ -43,8 +44,10 @@ from typing import Any
 from ipc.errors import IpcError
 
 from ..core import args as check
-from ..core.executor import RosExecutor, Task
+from ..core.batched import Batched
+from ..core.executor import RosExecutor
 from ..core.stats import Stats
+from ..core.task import Task
 
 log = logging.getLogger("sovd.rosworker.logs")
 
@@ -153,7 +156,8 @@ class LogBook:
 
     # ---- the subscription --------------------------------------------------------------
     def start(self) -> None:
-        """Subscribe to /rosout and drain it every ``DRAIN_EVERY`` s (ROS thread, before the loop runs)."""
+        """Subscribe to /rosout; drain it when lines come, at most every ``DRAIN_EVERY`` s (ROS thread,
+        before the loop runs)."""
         from rcl_interfaces.msg import Log
         from rclpy.duration import Duration
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -163,14 +167,7 @@ class LogBook:
                              lifespan=Duration(seconds=ROSOUT_LIFESPAN_S))
         self._cls = Log
         self.sub = self.node.create_subscription(Log, TOPIC, _never_called, profile)
-        self._schedule()
-
-    def _schedule(self) -> None:
-        def tick() -> None:
-            if not self.executor.stopping:
-                self._schedule()
-            self.drain()
-        self.executor.call_later(DRAIN_EVERY, tick)
+        Batched(self.executor, "/rosout", lambda: self.sub, self.drain, DRAIN_EVERY)
 
     def drain(self, budget: int = TAKES_PER_ROUND) -> int:
         """Take up to ``budget`` lines from /rosout into the buffers; how many were taken."""

@@ -6,7 +6,9 @@ seconds without goals, or when the path is used with another type.  rclpy's
 futures are never used: goals, cancels and result requests go out on the
 client's rcl handle (``send_goal_request`` ...), and :meth:`ActionClients.poll`
 (an executor poller) takes goal, cancel and result responses, feedback and
-status from it while something is open.
+status from it when a client with something open has one ready (the waiter wakes
+the ROS thread), at the requests' deadlines, and every ``SERVER_CHECK`` s while
+goals run.
 
 Goals: each accepted goal is a :class:`Goal` keyed by its UUID as 32 hex
 digits (medkit's execution id).  Its status follows the action's status
@@ -36,8 +38,9 @@ from typing import Any
 
 from ipc.errors import IpcError
 
-from ..core.executor import RosExecutor, Task
+from ..core.executor import RosExecutor
 from ..core.stats import Stats
+from ..core.task import Task
 from ..ros.decode import from_plain
 from ..ros.encode import to_plain
 from ..ros.msgtypes import ConversionError
@@ -53,6 +56,8 @@ SETTLE = 0.25
 MAX_IN_FLIGHT = 8
 MATCH_WAIT = 1.0      # seconds a goal waits for a new client to match its server before it is 503
 SERVER_GONE = 2.0     # seconds a running goal's server may be missing before the goal is failed
+SERVER_CHECK = 0.5    # seconds between looks at the server of running goals
+MATCH_POLL = 0.002    # seconds between looks at a new client's match while a goal waits for it
 # action_msgs/msg/GoalStatus codes -> medkit's ros2_status words
 ROS_STATUS = {0: "unknown", 1: "accepted", 2: "executing", 3: "canceling", 4: "succeeded", 5: "canceled",
               6: "aborted"}
@@ -63,9 +68,10 @@ SOVD_STATUS = {"accepted": "running", "executing": "running", "canceling": "runn
 
 def answers(pending: dict[int, Any], take: Callable[[], tuple[int | None, Any]]) -> Iterator[tuple[Any, Any]]:
     """``(what was kept for the request, its response)`` for each answer ``take()`` has for a request in
-    ``pending`` (by sequence number; popped), until none is left or every request is answered.
-    An answer to a request no longer pending (timed out) is dropped."""
-    while pending:
+    ``pending`` (by sequence number; popped), until none is left.  An answer to a request no longer
+    pending (timed out) is dropped: every answer that came is taken, so the waiter does not wake for it
+    again."""
+    while True:
         seq, response = take()
         if seq is None:
             return
@@ -163,9 +169,10 @@ class ActionClients:
         self.entries: collections.OrderedDict[str, Pooled] = collections.OrderedDict()
         self.goals: dict[str, Goal] = {}       # every kept goal, by id (restored ones too)
         self.open = 0                          # sends, cancels and goals not finished
+        self.polled = 0.0                      # when poll() last ran: what due() counts from
         # Called after a goal starts or finishes (ROS thread) with what to run once that is saved.
         self.on_change: Callable[[Callable[[], None] | None], None] = lambda then=None: then and then()
-        executor.add_poller("action clients", lambda: self.open > 0, self.poll)
+        executor.add_poller("action clients", self.waitables, self.poll, self.due)
 
     # ---- clients --------------------------------------------------------------------------
     def _client(self, path: str, type_name: str, action: type) -> Pooled:
@@ -201,7 +208,7 @@ class ActionClients:
             goal.finish("unknown", "The gateway dropped its client of the action before the goal finished")
         self._count()
         try:
-            pooled.client.destroy()
+            self.node.destroy_action_client(pooled.client)
         except Exception:
             log.exception("destroying the action client of %s failed", path)
 
@@ -302,8 +309,32 @@ class ActionClients:
         self._count()
 
     # ---- the poller -----------------------------------------------------------------------
+    def waitables(self) -> list:
+        """The clients with requests, results or goals open (their responses, feedback and status wake
+        the ROS thread)."""
+        if not self.open:
+            return []
+        return [p.client for p in self.entries.values() if p.busy or p.results]
+
+    def due(self) -> float | None:
+        """When :meth:`poll` must run without an event: a request's deadline; soon while a goal waits
+        for its client to match; every ``SERVER_CHECK`` s while goals run (is their server still there?)."""
+        if not self.open:
+            return None
+        due = None
+        for pooled in self.entries.values():
+            if pooled.waiting:
+                return self.polled + MATCH_POLL
+            for _task, _goal, deadline in (*pooled.sends.values(), *pooled.cancels.values()):
+                if due is None or deadline < due:
+                    due = deadline
+            if any(not g.done for g in pooled.goals.values()):
+                check = self.polled + SERVER_CHECK
+                due = min(due, check) if due is not None else check
+        return due
+
     def poll(self) -> None:
-        now = time.monotonic()
+        now = self.polled = time.monotonic()
         changed = False
         for pooled in list(self.entries.values()):
             changed |= self._poll_one(pooled, now)
@@ -358,23 +389,24 @@ class ActionClients:
                 message = {1: "Cancel request rejected", 2: "Unknown execution ID",
                            3: "Execution already terminated"}.get(code, f"Cancel refused (return code {code})")
                 task.fail(IpcError("action-rejected", message, {"action": pooled.path, "return_code": code}))
-        if pooled.goals:
-            while True:
-                feedback = handle.take_feedback(impl.FeedbackMessage)
-                if feedback is None:
-                    break
-                goal = pooled.goals.get(bytes(feedback.goal_id.uuid).hex())
-                if goal is not None and not goal.done:
-                    goal.feedback = to_plain(feedback.feedback)
-            while True:
-                status = handle.take_status(impl.GoalStatusMessage)
-                if status is None:
-                    break
-                for item in status.status_list:
-                    goal = pooled.goals.get(bytes(item.goal_info.goal_id.uuid).hex())
-                    word = ROS_STATUS.get(int(item.status), "unknown")
-                    if goal is not None and not goal.done and word in ("accepted", "executing", "canceling"):
-                        goal.ros2_status = word
+        # Feedback and status are taken even with no goal of ours yet: what is ready is taken, or the
+        # waiter wakes the ROS thread again at once.
+        while True:
+            feedback = handle.take_feedback(impl.FeedbackMessage)
+            if feedback is None:
+                break
+            goal = pooled.goals.get(bytes(feedback.goal_id.uuid).hex())
+            if goal is not None and not goal.done:
+                goal.feedback = to_plain(feedback.feedback)
+        while True:
+            status = handle.take_status(impl.GoalStatusMessage)
+            if status is None:
+                break
+            for item in status.status_list:
+                goal = pooled.goals.get(bytes(item.goal_info.goal_id.uuid).hex())
+                word = ROS_STATUS.get(int(item.status), "unknown")
+                if goal is not None and not goal.done and word in ("accepted", "executing", "canceling"):
+                    goal.ros2_status = word
         for goal, response in answers(
                 pooled.results, lambda: handle.take_result_response(impl.GetResultService.Response)):
             goal.result = to_plain(response.result)
@@ -438,7 +470,7 @@ class ActionClients:
         for path in list(self.entries):
             pooled = self.entries.pop(path)
             try:
-                pooled.client.destroy()
+                self.node.destroy_action_client(pooled.client)
             except Exception:
                 log.exception("destroying the action client of %s failed", path)
         self._count()

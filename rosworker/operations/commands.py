@@ -13,8 +13,9 @@ import time
 from collections.abc import Callable
 
 from ..core import args
-from ..core.executor import RosExecutor, Task
+from ..core.executor import RosExecutor
 from ..core.stats import Stats
+from ..core.task import Task
 from .actions import ActionClients
 from .goals import GoalRecord, load_restart
 from .interfaces import load_interface, node_operations, type_info

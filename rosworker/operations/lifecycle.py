@@ -24,7 +24,7 @@ from typing import Any
 from ipc.errors import IpcError
 
 from ..core import args
-from ..core.executor import Task
+from ..core.task import Task
 from .interfaces import load_interface
 from .services import SETTLE, ServiceClients
 

@@ -7,8 +7,8 @@ the graph, or when the path is called with another type.
 A call never blocks the ROS thread: the request is sent on the client's rcl
 handle (``send_request``), the call waits in :attr:`ServiceClients.pending`,
 and the executor's poller (:meth:`poll`, ``RosExecutor.add_poller``) takes the
-responses from the handles (``take_response``) on every round while something
-waits.  No rclpy future, no executor, no spin.  A call that has no response
+responses from the handles (``take_response``) when a client with calls sent has
+one (the waiter wakes the ROS thread), and at the calls' deadlines.  No rclpy future, no executor, no spin.  A call that has no response
 within its deadline (``service_call_timeout``) is answered ``not-responding``:
 the server may or may not have run it.  Its late response is taken and
 dropped.
@@ -23,8 +23,9 @@ from typing import Any
 
 from ipc.errors import IpcError
 
-from ..core.executor import RosExecutor, Task
+from ..core.executor import RosExecutor
 from ..core.stats import Stats
+from ..core.task import Task
 from ..ros.decode import from_plain
 from ..ros.encode import to_plain
 from ..ros.msgtypes import ConversionError
@@ -39,6 +40,7 @@ SETTLE = 0.25
 # services' default history (10): a burst beyond it is dropped at the server, unanswered.
 MAX_IN_FLIGHT = 8
 MATCH_WAIT = 1.0   # seconds a call waits for a new client to match its server before it is 503
+MATCH_POLL = 0.002  # seconds between looks at a new client's match while a call waits for it
 
 
 class Pooled:
@@ -72,7 +74,28 @@ class ServiceClients:
         self.idle = idle
         self.entries: collections.OrderedDict[str, Pooled] = collections.OrderedDict()
         self.in_flight = 0
-        executor.add_poller("service clients", lambda: self.in_flight > 0, self.poll)
+        self.polled = 0.0  # when poll() last ran: what due() counts from
+        executor.add_poller("service clients", self.waitables, self.poll, self.due)
+
+    def waitables(self) -> list:
+        """The clients with calls sent (their responses wake the ROS thread)."""
+        if not self.in_flight:
+            return []
+        return [p.client for p in self.entries.values() if p.calls]
+
+    def due(self) -> float | None:
+        """When :meth:`poll` must run without a response: a call's deadline, or soon while a call waits for
+        its client to match its server (rclpy has no event for a match)."""
+        if not self.in_flight:
+            return None
+        due = None
+        for pooled in self.entries.values():
+            if pooled.waiting:
+                return self.polled + MATCH_POLL
+            for _task, deadline in pooled.calls.values():
+                if due is None or deadline < due:
+                    due = deadline
+        return due
 
     def _client(self, path: str, type_name: str, srv: type) -> Pooled:
         pooled = self.entries.get(path)
@@ -125,7 +148,7 @@ class ServiceClients:
         pooled.calls[seq] = (task, deadline)
 
     def poll(self) -> None:
-        now = time.monotonic()
+        now = self.polled = time.monotonic()
         for pooled in list(self.entries.values()):
             if pooled.waiting:
                 ready = pooled.ready(now)

@@ -14,7 +14,7 @@ from ipc import events
 from ipc.protocol import BYTES_MODES
 
 from ..core import args
-from ..core.executor import Task
+from ..core.task import Task
 from .registry import StreamRegistry
 
 INTERVALS = tuple(events.INTERVALS)

@@ -44,10 +44,11 @@ from ipc import events, protocol
 from ipc.errors import IpcError
 
 from ..core.events import EventsChannel
-from ..core.executor import RosExecutor, Timer
+from ..core.executor import RosExecutor
 from ..core.perclient import PerClient
 from ..core.samplers import SamplerRegistry
 from ..core.stats import Stats
+from ..core.task import Timer
 from ..core.writer import once_written
 
 log = logging.getLogger("sovd.rosworker.subscriptions")

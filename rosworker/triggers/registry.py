@@ -45,10 +45,11 @@ from ipc import events, jsonpointer, protocol
 from ipc.errors import IpcError
 
 from ..core import args
-from ..core.executor import RosExecutor, Task, Timer
+from ..core.executor import RosExecutor
 from ..core.notifier import ChangeNotifier
 from ..core.perclient import PerClient
 from ..core.stats import Stats
+from ..core.task import Task, Timer
 from ..core.writer import once_written
 from .conditions import check_condition
 from .sources import TriggerObserver

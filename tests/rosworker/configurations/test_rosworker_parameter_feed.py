@@ -15,7 +15,7 @@ from rcl_interfaces.msg import Parameter, ParameterEvent, ParameterType, Paramet
 
 from ipc.errors import IpcError
 from rosworker.configurations.feed import ParameterFeed
-from rosworker.core.executor import Timer
+from rosworker.core.task import Timer
 from rosworker.subscriptions.registry import Subscription
 
 

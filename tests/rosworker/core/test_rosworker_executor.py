@@ -372,9 +372,10 @@ def test_a_failed_qos_rebuild_keeps_the_old_subscription(tmp_path):
         ctx.term()
 
 
-def test_a_poller_runs_every_round_only_while_active_and_a_failure_is_contained(tmp_path):
-    """add_poller: polled at the cold-poll pace while active; idle costs nothing; errors counted."""
-    from rosworker.core.executor import COLD_POLL, RosExecutor
+def test_a_poller_runs_when_its_entities_are_ready_or_its_time_is_due_and_a_failure_is_contained(tmp_path):
+    """add_poller without a waiter (no rclpy here): polled every NO_WAITER_POLL s while it has entities
+    open; at its due time when it has none; never while it has neither; a failing poll is counted."""
+    from rosworker.core.executor import NO_WAITER_POLL, RosExecutor
     from rosworker.core.stats import Stats
 
     stats = Stats(pool_cap=4, cold_wait_cap=4, watchdog_threshold_ms=5000)
@@ -382,7 +383,9 @@ def test_a_poller_runs_every_round_only_while_active_and_a_failure_is_contained(
     executor = RosExecutor(ctx, str(tmp_path), stats, 16)
     calls: list[float] = []
     idle_calls: list[float] = []
+    due_calls: list[float] = []
     done = threading.Event()
+    due_at = [None]
 
     def poll():
         calls.append(time.monotonic())
@@ -391,21 +394,27 @@ def test_a_poller_runs_every_round_only_while_active_and_a_failure_is_contained(
         if len(calls) >= 20:
             done.set()
 
-    executor.add_poller("test", lambda: not done.is_set(), poll)
-    executor.add_poller("idle", lambda: False, lambda: idle_calls.append(1))
+    executor.add_poller("test", lambda: [] if done.is_set() else ["an entity"], poll)
+    executor.add_poller("idle", lambda: [], lambda: idle_calls.append(1))
+    executor.add_poller("timed", lambda: [], lambda: (due_calls.append(time.monotonic()), due_at.__setitem__(0, None)),
+                        lambda: due_at[0])
     executor.bind()
     thread = threading.Thread(target=executor.run, daemon=True)
     started = time.monotonic()
     thread.start()
     try:
         assert done.wait(10), f"only {len(calls)} polls"
-        # 20 polls paced by COLD_POLL, not by the 1 s idle wait (a generous bound that catches a hang)
-        assert calls[19] - started < 20 * COLD_POLL + 5.0
+        # 20 polls paced by NO_WAITER_POLL, not by the 1 s idle wait (a generous bound that catches a hang)
+        assert calls[19] - started < 20 * NO_WAITER_POLL + 5.0
         assert idle_calls == []
         assert stats.loop_errors == 1
         count = len(calls)
         time.sleep(0.05)
-        assert len(calls) == count  # inactive: not polled again
+        assert len(calls) == count  # nothing open: not polled again
+        wanted = time.monotonic() + 0.3
+        executor.post(lambda: due_at.__setitem__(0, wanted))
+        poll_until(lambda: due_calls, 5, message="the poll at its due time")
+        assert due_calls[0] >= wanted and idle_calls == [] and len(calls) == count
     finally:
         executor.stop()
         thread.join(10)

@@ -168,17 +168,25 @@ def test_a_stale_level_confirms_at_once_and_a_silent_status_turns_stale(make):
 
 
 def test_silence_is_judged_against_what_was_taken_not_against_the_clock(make):
-    """Reports that wait in the subscription's queue (the ROS thread was busy) are not silence: the
-    timer judges staleness only up to the last moment a round took everything."""
+    """Reports that wait in the subscription's queue (the ROS thread was busy) are not silence: a check of
+    the timers takes what waits first, and judges staleness only up to the last moment the queue was
+    seen empty (a flood past a round's budget leaves that moment where it was)."""
     m = make(confirm_count=1, stale_s=5)
-    m.executor = types.SimpleNamespace(call_later=lambda *_: None)
-    m.sub = object()                               # a subscription: rounds decide what "taken" means
+    m.executor = types.SimpleNamespace(call_later=lambda *_: None, guarded=lambda _where, fn, *a: fn(*a))
+    waiting: list = []
+    m.sub = types.SimpleNamespace(handle=types.SimpleNamespace(
+        take_message=lambda _cls, _raw: (waiting.pop(0), {}) if waiting else None))
     m.on_array(array(("probe", 2)))
     m.seen["PROBE"][0] -= 10                       # its last report was taken 10 s ago ...
-    m._drained = m.seen["PROBE"][0]                # ... and no round has emptied the queue since
+    waiting.append(array(("probe", 2)))            # ... and a new one waits in the queue
     m._tick_round()
     assert m.faults["PROBE"]["severity"] == 2 and not m.faults["PROBE"]["description"].startswith("stale")
-    m._drained = time.monotonic()                  # a round took everything: nothing came in 10 s
+    m.seen["PROBE"][0] -= 10                       # 10 s since that one ...
+    m._drained -= 10                               # ... the queue last seen empty then, and a flood waits:
+    waiting.extend(array(*((f"flood {i}.{j}", 0) for j in range(100))) for i in range(mod.TAKE_PER_ROUND))
+    m._tick_round()                                # one round's budget of it is taken, not all
+    assert waiting and m.faults["PROBE"]["severity"] == 2
+    waiting.clear()                                # the queue empties: nothing came in 10 s
     m._tick_round()
     assert m.faults["PROBE"]["severity"] == 3 and m.faults["PROBE"]["description"].startswith("stale")
 
