@@ -42,7 +42,7 @@ STATS = {
     "executor": {"worker_alive": True, "degraded": False, "queue_depth": 0, "queue_max_depth_observed": 2,
                  "queue_dropped": 0, "tasks_completed": 9, "tasks_failed": 0, "last_task_latency_us": 120,
                  "max_task_latency_us": 900, "current_task_age_ms": 0, "watchdog_trips": 0,
-                 "graph_events_received": 3, "loop_errors": 0},
+                 "graph_events_received": 3, "loop_errors": 0, "loop_wakeups": 0},
     "details": {"evictions": {"graph": 1, "type_change": 0, "lru": 2, "idle": 0, "qos_rebuild": 0,
                               "manual": 0, "shutdown": 0, "bytes": 0}},
 }
