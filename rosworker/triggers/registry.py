@@ -261,11 +261,10 @@ class TriggerRegistry:
         for trigger in fired:
             if trigger.status == "active":
                 modes.setdefault(trigger.bytes, []).append(trigger)
-        ended: list[Trigger] = []
         for mode, triggers in modes.items():
             body = payload(mode) if payload is not None and error is None else None
             keep = body is None or len(body) <= REPLAY_MAX_BYTES
-            entries = []
+            entries, ended = [], []
             for trigger in triggers:
                 trigger.seq += 1
                 last = error is None and not trigger.multishot
@@ -280,8 +279,8 @@ class TriggerRegistry:
             self._send([key, protocol.pack(meta), body or b""])
             self.stats.trigger_frames += 1
             self.stats.trigger_events += len(entries)
-        for trigger in ended:
-            self._terminate(trigger)
+            for trigger in ended:
+                self._terminate(trigger)
 
     def _terminate(self, trigger: Trigger) -> None:
         trigger.status = "terminated"
