@@ -61,11 +61,8 @@ def data_key(interval: str, mode: str, topic: str) -> bytes:
     return f"d|{interval}|{mode}|{topic}|".encode()
 
 
-# Triggers (rosworker/triggers/registry.py).  One frame per change of what triggers observe, however many of
-# them fired on it: ``t|g|<bytes mode>|<source>|<digest of the target>|`` + msgpack {"ts", "fired": [[id, seq,
-# last], ...], "error"?} + the change's JSON in that bytes mode (one frame per bytes mode among the triggers that
-# fired); ``t|c|<id>|`` + msgpack {"event", "id"} when one is deleted or expires.  HTTP workers subscribe to
-# ``t|c|`` and to the group key of each trigger their open streams watch (``trigger_group_key``).
+# Triggers (rosworker/triggers/registry.py; their frames above): HTTP workers subscribe to ``t|c|`` and to
+# the group key of each trigger their open streams watch (``trigger_group_key``); the fleet link to ``t|g|``.
 TRIGGER_GROUP_PREFIX = b"t|g|"
 TRIGGER_CONTROL_PREFIX = b"t|c|"
 
