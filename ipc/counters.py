@@ -238,8 +238,10 @@ COUNTERS: tuple[Counter, ...] = (
     C("streams", "triggers_created", COUNTER, "Triggers created", "sovd_ros_triggers_created"),
     C("streams", "trigger_messages", COUNTER, "Messages of watched topics taken and evaluated (one per "
       "message, however many triggers watch the topic)", "sovd_ros_trigger_messages"),
-    C("streams", "trigger_events", COUNTER, "Trigger events sent to the HTTP workers (firings)",
-      "sovd_ros_trigger_events"),
+    C("streams", "trigger_events", COUNTER, "Trigger events sent to the HTTP workers (firings: one per trigger "
+      "and change it fired on)", "sovd_ros_trigger_events"),
+    C("streams", "trigger_frames", COUNTER, "Trigger frames sent on the events channel (one per change and bytes "
+      "mode, however many triggers it fired)", "sovd_ros_trigger_frames"),
     # ---- the fleet link (issue 34; supervisor/fleet/): both roles ----
     C("fleet", "session_open", FLAG, "True while the link's Zenoh session is open (connected to a router)",
       "sovd_fleet_session_open", origin=FLEET),

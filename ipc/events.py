@@ -14,6 +14,11 @@ streams watch them.  The wire format is documented in ``ipc/PROTOCOL.md``.
 - control ``c|<subscription id>`` + msgpack ``{"event": "updated" | "deleted" |
   "expired", "id", "key", "interval", "expires_in"}``, and ``c|shutdown`` when the
   ROS worker stops;
+- triggers ``t|g|<bytes mode>|<source>|<digest>|`` + msgpack ``{"ts", "fired": [[id, seq,
+  last], ...], "error"?}`` + the change's JSON: one frame per change of what a group of
+  triggers observes (one source and target), however many of them fired on it; and
+  ``t|c|<id>|`` + msgpack ``{"event", "id"}`` when one is deleted or expires;
+- faults ``f|`` + msgpack ``{"id", "event_type", "fault", "timestamp"}``;
 - heartbeat ``h|`` + msgpack ``{"pid", "t"}`` every second;
 - confirmation: a one-frame message, the subscribed prefix itself, answers every
   subscription an HTTP worker makes (the XPUB is verbose: the ROS thread reads
@@ -25,6 +30,7 @@ streams watch them.  The wire format is documented in ``ipc/PROTOCOL.md``.
 
 from __future__ import annotations
 
+import hashlib
 import os
 
 EVENTS_SOCKET_NAME = "rosworker-events.sock"
@@ -55,14 +61,18 @@ def data_key(interval: str, mode: str, topic: str) -> bytes:
     return f"d|{interval}|{mode}|{topic}|".encode()
 
 
-# Triggers (rosworker/triggers/registry.py): ``t|e|<id>|`` + msgpack {"ts", "seq", "last"?, "error"?} + the
-# message's JSON, sent only when a trigger fires; ``t|c|<id>|`` + msgpack {"event", "id"} when one
-# is deleted or expires.  HTTP workers subscribe to ``t|c|`` and to the events of their open streams.
+# Triggers (rosworker/triggers/registry.py; their frames above): HTTP workers subscribe to ``t|c|`` and to
+# the group key of each trigger their open streams watch (``trigger_group_key``); the fleet link to ``t|g|``.
+TRIGGER_GROUP_PREFIX = b"t|g|"
 TRIGGER_CONTROL_PREFIX = b"t|c|"
 
 
-def trigger_event_key(trigger_id: str) -> bytes:
-    return b"t|e|" + trigger_id.encode() + b"|"
+def trigger_group_key(source: str, mode: str, target: str) -> bytes:
+    """The key of the events of every trigger that observes ``target`` of the collection ``source`` with
+    payloads in bytes ``mode`` (both sides compute it from the trigger's fields).  The target goes in as a
+    digest: a topic may be long, and an entity's scope is JSON that may hold ``|``."""
+    digest = hashlib.blake2b(f"{source}\0{target}".encode("utf-8", "surrogatepass"), digest_size=8).hexdigest()
+    return f"t|g|{mode}|{source}|{digest}|".encode()
 
 
 def trigger_control_key(trigger_id: str) -> bytes:

@@ -1,10 +1,15 @@
 """The HTTP worker's side of triggers: their event streams (``.../triggers/{id}/events``).
 
 One :class:`TriggerHub` per HTTP worker process (``app/sse/hub.py``), subscribed
-to the triggers' control frames, to the heartbeat, and to the events of the
-triggers its open streams watch, so a process receives a trigger's event once
-however many of its streams watch it, and nothing of the triggers it does not
-stream.
+to the triggers' control frames, to the heartbeat, and to the group key
+(``events.trigger_group_key``: a source, a target, a bytes mode) of each trigger
+its open streams watch.  The ROS worker sends a change once per group key
+however many of its triggers fired on it, with their ids and sequence numbers
+(``ipc/PROTOCOL.md``): a process receives it once, builds its SSE frame once
+(and its HTTP chunk once), and pushes that one buffer into the streams of each
+trigger that fired.  A process receives nothing of a group none of its streams
+watches; a change of a group it watches that fired none of its triggers costs
+it a look-up per trigger that fired.
 
 A trigger's events come only when it fires.  Each stream (``app/sse/stream.py``)
 holds at most ``EVENT_BUFFER`` events and ``STREAM_BUFFER_BYTES``: past them the
@@ -40,7 +45,7 @@ from ipc.errors import IpcError
 from ..core import rosclient
 from ..sse import hub as sse
 from ..sse.hub import Hub
-from ..sse.stream import Stream, frame
+from ..sse.stream import Stream, chunked, frame
 
 log = logging.getLogger("sovd.http.triggers")
 
@@ -66,22 +71,29 @@ class TriggerHub(Hub):
                  stopping: Callable[[], bool] = lambda: False, send_timeout: float = 30.0):
         super().__init__(runtime_dir, send_timeout, stopping)
         self._lookup = lookup           # (stream, open) -> trig_get / trig_open answer (IpcError)
-        self.by_id: dict[str, set[Stream]] = {}
+        self.by_id: dict[str, set[Stream]] = {}    # trigger id -> its open streams
+        self.by_key: dict[bytes, set[Stream]] = {}  # group key -> the open streams of its triggers
 
     # ---- streams --------------------------------------------------------------------------------
     def stream(self, trigger: dict[str, Any], sock: Any = None, framed: bool = False) -> Stream:
         stream = Stream(self, EVENT_BUFFER, sock, framed)
         stream.id, stream.collection, stream.entity_id = trigger["id"], trigger["collection"], trigger["entity_id"]
-        stream.key = events.trigger_event_key(stream.id)
+        stream.key = events.trigger_group_key(trigger["source"], trigger["bytes"], trigger["target"])
         stream.next_check = time.monotonic() + VERIFY_EVERY
         stream.told_down = False
         return stream
 
     def added(self, stream: Stream) -> None:
-        self.watch(self.by_id, stream.id, stream, stream.key)
+        self.by_id.setdefault(stream.id, set()).add(stream)
+        self.watch(self.by_key, stream.key, stream, stream.key)
 
     def removed(self, stream: Stream) -> None:
-        self.unwatch(self.by_id, stream.id, stream, stream.key)
+        streams = self.by_id.get(stream.id)
+        if streams is not None:
+            streams.discard(stream)
+            if not streams:
+                del self.by_id[stream.id]
+        self.unwatch(self.by_key, stream.key, stream, stream.key)
 
     def opening(self, stream: Stream) -> None:
         """Before the response head: the subscription confirmed, then what fired before it opened."""
@@ -111,20 +123,37 @@ class TriggerHub(Hub):
         if key == events.HEARTBEAT_KEY:
             self.heartbeat = time.monotonic()
             return
-        if len(frames) < 2 or not key.startswith(b"t|"):
+        if len(frames) < 2:
             return
-        streams = self.by_id.get(key[4:-1].decode(errors="replace"))
-        if not streams:
-            return
-        meta = protocol.unpack(frames[1])
-        if key.startswith(events.TRIGGER_CONTROL_PREFIX):
-            if meta.get("event") in ("deleted", "expired"):
+        if key.startswith(events.TRIGGER_GROUP_PREFIX):
+            self._fired(protocol.unpack(frames[1], protocol.MAX_REPLY_FRAME), frames[2] if len(frames) > 2 else b"")
+        elif key.startswith(events.TRIGGER_CONTROL_PREFIX):
+            streams = self.by_id.get(key[4:-1].decode(errors="replace"))
+            if streams and protocol.unpack(frames[1]).get("event") in ("deleted", "expired"):
                 for stream in list(streams):
                     stream.end()
+
+    def _fired(self, meta: dict[str, Any], payload: bytes) -> None:
+        """One change, and the triggers it fired: its frame made once, pushed into each one's streams."""
+        fired = meta.get("fired") if isinstance(meta, dict) else None
+        if not isinstance(fired, list):
             return
-        payload = frames[2] if len(frames) > 2 else b""
-        for stream in list(streams):
-            event(stream, meta, payload)
+        made: list[bytes] = []   # the frame, then the frame as an HTTP chunk (each made when first needed)
+        for entry in fired:
+            if not isinstance(entry, list) or len(entry) != 3:
+                continue
+            trigger_id, seq, last = entry
+            streams = self.by_id.get(trigger_id) if isinstance(trigger_id, str) else None
+            if not streams:
+                continue
+            if not made:
+                made.append(event_frame(meta, payload))
+            for stream in list(streams):
+                if stream.framed and len(made) == 1:
+                    made.append(chunked(made[0]))
+                stream.push(made[0], made[1] if stream.framed else None, seq=seq if isinstance(seq, int) else None)
+                if last:
+                    stream.end()
 
     # ---- the ticker ----------------------------------------------------------------------------------
     def tick(self, now: float) -> None:
@@ -150,14 +179,19 @@ class TriggerHub(Hub):
             stream.end()
 
 
-def event(stream: Stream, meta: dict[str, Any], payload: bytes) -> None:
-    """One trigger event into ``stream`` (sent once: its ``seq``); a one-shot's (``last``) ends it."""
-    seq = meta.get("seq") if isinstance(meta.get("seq"), int) else None
+def event_frame(meta: dict[str, Any], payload: bytes) -> bytes:
+    """The SSE frame of one trigger event (``meta``: its ``ts`` and ``error``?), the same for every trigger
+    the change fired: neither the trigger nor its ``seq`` is in it."""
     stamp = meta["ts"] if isinstance(meta.get("ts"), int) else time.time_ns()
     if isinstance(meta.get("error"), str):
-        stream.push(error_frame(stamp, meta["error"]), seq=seq)
-    else:
-        stream.push(frame(stamp, payload=payload or b"{}"), seq=seq)
+        return error_frame(stamp, meta["error"])
+    return frame(stamp, payload=payload or b"{}")
+
+
+def event(stream: Stream, meta: dict[str, Any], payload: bytes) -> None:
+    """One trigger event into ``stream`` (a replay: sent once, by its ``seq``); a one-shot's (``last``) ends it."""
+    seq = meta.get("seq") if isinstance(meta.get("seq"), int) else None
+    stream.push(event_frame(meta, payload), seq=seq)
     if meta.get("last"):
         stream.end()
 

@@ -3,9 +3,9 @@
 A family *provides* a collection it can tell changes of (:meth:`ChangeNotifier.provide`):
 ``data`` (every message of a topic, ``data/observable.py``), ``faults`` (every fault
 event, ``faults/observable.py``), ``logs`` (every line, ``logs/observable.py``).  An
-observer (a trigger, ``triggers/sources.py``; any family: bulk data may observe
-``faults`` for ``fault_confirmed``) is attached with :meth:`ChangeNotifier.observe` and
-knows no family.
+observer (the triggers of one target, ``triggers/sources.py``; any family: bulk data
+may observe ``faults`` for ``fault_confirmed``) is attached with
+:meth:`ChangeNotifier.observe` and knows no family.
 
 An observable (ROS thread only):
 
@@ -22,9 +22,10 @@ It calls, for every change of what an observer's ``target`` names (``""``: all):
   its JSON text (made once per change, whoever asks);
 - ``observer.failed(stamp_ns, message)``: a change that could not be read.
 
-An observer has ``target`` and ``bytes`` (``array`` or ``base64``: how its
-payload writes byte arrays).  The cost of a change nobody observes is one
-attribute test in the family (``observable.observers``).
+An observer has a ``target``; it asks for the payload in the bytes modes it
+needs (``array`` or ``base64``: how byte arrays are written).  The cost of a
+change nobody observes is one attribute test in the family
+(``observable.observers``).
 """
 
 from __future__ import annotations
@@ -45,7 +46,6 @@ SCOPE_MAX = 256 * 1024  # characters of a scope target (the entity's node names,
 
 class Observer(Protocol):
     target: str
-    bytes: str
 
     def changed(self, stamp: int, doc: Any, payload: Callable[[str], bytes]) -> None: ...
 

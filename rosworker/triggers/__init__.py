@@ -1,8 +1,8 @@
 """The triggers family: SOVD condition triggers, evaluated on every change of what they observe.
 
 - ``registry.py``: the triggers, their commands (``trig_*``) and their events;
-- ``conditions.py``: medkit's conditions; ``sources.py``: a trigger as an observer of a collection
-  another family provides (``core/notifier.py``), and the one evaluation;
+- ``conditions.py``: medkit's conditions; ``sources.py``: the triggers of one target as one observer
+  of a collection another family provides (``core/notifier.py``), and the one evaluation;
 - ``store.py``: their rows in the state dir's store (and an older gateway's ``triggers.json``).
 
 The triggers are restored once every family has started (the collections they observe provided):

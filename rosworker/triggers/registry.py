@@ -6,12 +6,16 @@ made through one HTTP worker streams through any other.
 
 What a trigger observes is a collection another family provides through the
 core's notifier (``data``: every message of a topic; ``faults``; ``logs``):
-``sources.py`` attaches each trigger there and evaluates its condition
-(``conditions.py``) on every change; this module knows no family.
+the triggers of one ``(source, target)`` are attached there as one group
+(``sources.py``), whose conditions (``conditions.py``) are evaluated on every
+change; this module knows no family.
 
-Events.  Only firing crosses to the HTTP workers, on the events channel:
-``t|e|<id>|`` + msgpack ``{"ts", "seq", "last"?, "error"?}`` + the JSON of
-the change.  A one-shot trigger's event is its last (``last``); it is then
+Events.  Only firing crosses to the HTTP workers, on the events channel, once
+per change and bytes mode however many triggers it fired (:meth:`TriggerRegistry.fire`):
+``t|g|<bytes mode>|<source>|<digest of the target>|`` (``events.trigger_group_key``)
++ msgpack ``{"ts", "fired": [[id, seq, last], ...], "error"?}`` + the JSON of
+the change; each HTTP worker frames it for the streams of each trigger in
+``fired``.  A one-shot trigger's event is its last (``last``); it is then
 ``terminated`` and kept ``TERMINATED_KEEP`` s, so a stream opened just
 after it fired still gets that event (``trig_open`` hands the newest event
 that no stream has been opened for yet).  Deletion and expiry are control
@@ -52,7 +56,7 @@ from ..core.stats import Stats
 from ..core.task import Task, Timer
 from ..core.writer import once_written
 from .conditions import check_condition
-from .sources import TriggerObserver
+from .sources import TriggerGroup
 from .store import MAX_LIFETIME, TriggerStore, valid_record
 
 log = logging.getLogger("sovd.rosworker.triggers")
@@ -117,7 +121,7 @@ class TriggerRegistry:
         self._timers: dict[str, Timer] = {}
         self.per_client = PerClient()
         self.store = store
-        self._observers: dict[str, TriggerObserver] = {}   # trigger id -> attached to its collection
+        self._groups: dict[tuple[str, str], TriggerGroup] = {}   # (source, target) -> attached to the collection
         stats.max_triggers = max_triggers
         stats.max_trigger_bytes = max_bytes
         self.handlers: dict[str, Callable[[Task], None]] = {
@@ -249,22 +253,35 @@ class TriggerRegistry:
         self._remove(self._get(task.args), "deleted", self._when_saved(task, {}))
 
     # ---- firing ------------------------------------------------------------------------------------
-    def fire(self, trigger: Trigger, stamp: int, *, payload: bytes | None = None, error: str | None = None) -> None:
-        if trigger.status != "active":
-            return
-        trigger.seq += 1
-        last = error is None and not trigger.multishot
-        keep = payload is None or len(payload) <= REPLAY_MAX_BYTES
-        trigger.last_event = (stamp, trigger.seq, payload, error) if keep else None
-        meta: dict[str, Any] = {"ts": stamp, "seq": trigger.seq}
-        if error is not None:
-            meta["error"] = error
-        if last:
-            meta["last"] = True
-        self._send([events.trigger_event_key(trigger.id), protocol.pack(meta), payload or b""])
-        self.stats.trigger_events += 1
-        if last:
-            self._terminate(trigger)
+    def fire(self, stamp: int, fired: list[Trigger], *, payload: Callable[[str], bytes] | None = None,
+             error: str | None = None) -> None:
+        """One change fired ``fired`` (triggers of one group: one source and target): one frame per bytes
+        mode among them carries the change (``payload(mode)``, made once) and, for each trigger, its id,
+        its ``seq`` and whether the event is its last (a one-shot's: the trigger is then terminated)."""
+        modes: dict[str, list[Trigger]] = {}
+        for trigger in fired:
+            if trigger.status == "active":
+                modes.setdefault(trigger.bytes, []).append(trigger)
+        for mode, triggers in modes.items():
+            body = payload(mode) if payload is not None and error is None else None
+            keep = body is None or len(body) <= REPLAY_MAX_BYTES
+            entries, ended = [], []
+            for trigger in triggers:
+                trigger.seq += 1
+                last = error is None and not trigger.multishot
+                trigger.last_event = (stamp, trigger.seq, body, error) if keep else None
+                entries.append([trigger.id, trigger.seq, last])
+                if last:
+                    ended.append(trigger)
+            meta: dict[str, Any] = {"ts": stamp, "fired": entries}
+            if error is not None:
+                meta["error"] = error
+            key = events.trigger_group_key(triggers[0].source, mode, triggers[0].target)
+            self._send([key, protocol.pack(meta), body or b""])
+            self.stats.trigger_frames += 1
+            self.stats.trigger_events += len(entries)
+            for trigger in ended:
+                self._terminate(trigger)
 
     def _terminate(self, trigger: Trigger) -> None:
         trigger.status = "terminated"
@@ -283,15 +300,23 @@ class TriggerRegistry:
         trigger.seq = trigger.opened_seq = max(trigger.seq, time.time_ns())
         self.triggers[trigger.id] = trigger
         self.per_client.take(trigger.client)
-        observer = self._observers[trigger.id] = TriggerObserver(trigger, self.fire)
-        self.notifier.observe(trigger.source, observer)
+        group = self._groups.get((trigger.source, trigger.target))
+        if group is None:
+            group = self._groups[trigger.source, trigger.target] = TriggerGroup(trigger.source, trigger.target,
+                                                                                self.fire)
+            self.notifier.observe(trigger.source, group)
+        group.triggers.append(trigger)
         self._arm(trigger)
         self._changed(trigger, then)
 
     def _detach(self, trigger: Trigger) -> None:
-        observer = self._observers.pop(trigger.id, None)
-        if observer is not None:
-            self.notifier.forget(trigger.source, observer)
+        group = self._groups.get((trigger.source, trigger.target))
+        if group is None or trigger not in group.triggers:
+            return
+        group.triggers.remove(trigger)
+        if not group.triggers:  # the last of its group: the collection no longer calls it
+            del self._groups[trigger.source, trigger.target]
+            self.notifier.forget(trigger.source, group)
 
     def _changed(self, trigger: Trigger, then: Callable[[], None] | None = None) -> None:
         """Its row written again (``then`` once it is); the size of what is held counted again."""

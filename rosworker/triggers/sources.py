@@ -1,13 +1,15 @@
-"""What a trigger observes: a collection another family provides (``core/notifier.py``), and the one evaluation.
+"""What triggers observe: a collection another family provides (``core/notifier.py``), and the one evaluation.
 
 A trigger's ``source`` names a collection of the core's notifier (``data``,
 ``faults``, ``logs``: whatever the families provide), its ``target`` what of it
 (a topic; an entity's scope as JSON), checked and made canonical by that
-collection (``check_target``).  Each trigger is attached as a
-:class:`TriggerObserver`; the collection calls it for every change of what it
-watches, and :func:`evaluate` runs its condition on the change (or on the value
-at its ``path`` in it: a change without that path is not evaluated) and fires
-it when the condition holds.  The triggers know no family.
+collection (``check_target``).  The triggers of one ``(source, target)`` are
+attached together, as one :class:`TriggerGroup`: the collection calls it once
+for every change of what they watch, :func:`evaluate` runs each one's
+condition on the change (or on the value at its ``path`` in it: a change
+without that path is not evaluated), and those that fired are handed on
+together (``fire``), so the change crosses to the HTTP workers once however
+many of them fired on it.  The triggers know no family.
 """
 
 from __future__ import annotations
@@ -20,37 +22,35 @@ from ipc import jsonpointer
 from .conditions import fires
 
 
-def evaluate(trigger: Any, doc: Any, stamp: int, payload: Callable[[str], bytes],
-             fire: Callable[..., None]) -> None:
-    """``trigger``'s condition on ``doc`` (or the value at its path) after its previous value; when it
-    holds, ``fire(trigger, stamp, payload=<the change's JSON in the trigger's bytes mode>)``."""
+def evaluate(trigger: Any, doc: Any) -> bool:
+    """Whether ``trigger``'s condition holds on ``doc`` (or the value at its path) after its previous value
+    (the value is kept as the next one's previous)."""
     value = jsonpointer.resolve(doc, trigger.tokens)
     if value is jsonpointer.MISSING:
-        return
+        return False
     previous, trigger.previous = trigger.previous, value
-    if fires(trigger.condition, previous, value):
-        fire(trigger, stamp, payload=payload(trigger.bytes))
+    return fires(trigger.condition, previous, value)
 
 
-class TriggerObserver:
-    """A trigger as an observer of its collection (``core/notifier.py``)."""
+class TriggerGroup:
+    """The triggers of one ``(source, target)``, as one observer of their collection (``core/notifier.py``).
 
-    __slots__ = ("trigger", "fire")
+    ``fire(stamp, fired, payload=...)`` gets the triggers a change fired (in the order they were
+    attached) and the change's ``payload(bytes_mode)``; ``fire(stamp, triggers, error=...)`` a change
+    that could not be read (every trigger of the group)."""
 
-    def __init__(self, trigger: Any, fire: Callable[..., None]):
-        self.trigger = trigger
+    __slots__ = ("source", "target", "triggers", "fire")
+
+    def __init__(self, source: str, target: str, fire: Callable[..., None]):
+        self.source = source
+        self.target = target
+        self.triggers: list[Any] = []
         self.fire = fire
 
-    @property
-    def target(self) -> str:
-        return self.trigger.target
-
-    @property
-    def bytes(self) -> str:
-        return self.trigger.bytes
-
     def changed(self, stamp: int, doc: Any, payload: Callable[[str], bytes]) -> None:
-        evaluate(self.trigger, doc, stamp, payload, self.fire)
+        fired = [trigger for trigger in list(self.triggers) if evaluate(trigger, doc)]
+        if fired:
+            self.fire(stamp, fired, payload=payload)
 
     def failed(self, stamp: int, message: str) -> None:
-        self.fire(self.trigger, stamp, error=message)
+        self.fire(stamp, list(self.triggers), error=message)

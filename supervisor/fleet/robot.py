@@ -15,7 +15,7 @@ Who calls what, on which thread:
   goes back as it is.  The link's own reads (``tree``, ``events``, ``ping``) are answered only
   after the gateway accepted the caller's identity (a ``GET /api/v1/`` with its headers).
 - The events thread reads the ROS worker's events channel (``ipc/events.py``: fault events ``f|``,
-  trigger events ``t|e|``) and publishes each event on ``sovd/<fleet_id>/events/faults`` or
+  trigger events ``t|g|``, one frame per change for every trigger it fired) and publishes each event on ``sovd/<fleet_id>/events/faults`` or
   ``.../events/triggers/<id>`` (JSON).  Fault events carry the ids of the robot's fault store; a gap
   (events missed while the ROS worker restarted) is filled from the store (``fault_events``).
 - The tree thread asks the ROS worker for its graph's generation every ``TREE_POLL`` seconds (the
@@ -241,7 +241,7 @@ class RobotLink:
         sock.setsockopt(zmq.MAXMSGSIZE, protocol.MAX_REPLY_FRAME)
         sock.setsockopt(zmq.RECONNECT_IVL, 100)
         sock.setsockopt(zmq.RECONNECT_IVL_MAX, 1000)
-        for key in (ipc_events.FAULT_KEY, b"t|e|"):
+        for key in (ipc_events.FAULT_KEY, ipc_events.TRIGGER_GROUP_PREFIX):
             sock.setsockopt(zmq.SUBSCRIBE, key)
         sock.connect(ipc_events.endpoint(self.cfg.runtime_dir))
         try:
@@ -272,17 +272,24 @@ class RobotLink:
             if self.last_fault_id and event_id > self.last_fault_id + 1:
                 self._fill_gap(event_id)
             self._publish_fault(event)
-        elif frames[0].startswith(b"t|e|") and len(frames) >= 3:
-            trigger_id = frames[0][4:].rstrip(b"|").decode("utf-8", "replace")
+        elif frames[0].startswith(ipc_events.TRIGGER_GROUP_PREFIX) and len(frames) >= 3:
             meta = protocol.unpack(frames[1], protocol.MAX_REPLY_FRAME)
+            fired = meta.get("fired") if isinstance(meta, dict) else None
+            if not isinstance(fired, list):
+                return
             try:
                 payload = orjson.loads(frames[2]) if frames[2] else None
             except orjson.JSONDecodeError:
                 payload = None
-            body = {"trigger_id": trigger_id, **{k: meta[k] for k in ("seq", "ts", "last", "error") if k in meta},
-                    "payload": payload}
-            self._session.put(wire.event_key(self.fleet_id, "triggers", trigger_id), orjson.dumps(body))
-            self.stats.add("events_published")
+            common = {k: meta[k] for k in ("ts", "error") if k in meta}
+            for entry in fired:  # each trigger's event, as it would have been on its own
+                if not isinstance(entry, list) or len(entry) != 3 or not isinstance(entry[0], str):
+                    continue
+                trigger_id, seq, last = entry
+                body = {"trigger_id": trigger_id, "seq": seq, **common, **({"last": True} if last else {}),
+                        "payload": payload}
+                self._session.put(wire.event_key(self.fleet_id, "triggers", trigger_id), orjson.dumps(body))
+                self.stats.add("events_published")
 
     def _fill_gap(self, upto: int) -> None:
         try:

@@ -5,6 +5,7 @@
         event = s.next(timeout=2)      # {"timestamp", "payload"} or {"timestamp", "error"}; None at the end
         s.comments                     # ":" lines seen (keep-alives)
         s.fields[i]                    # the other lines of event i: {"id": ..., "event": ...}
+        s.blocks[i]                    # event i's bytes as they came (without the blank line)
 
 Frames are parsed as they arrive, so a test can tell a stream that is sent
 event by event from one buffered until it ends.  ``recv_buffer`` shrinks the
@@ -43,6 +44,7 @@ class EventStream:
         self.comments: list[bytes] = []
         self.events: list[dict[str, Any]] = []   # every event parsed so far, in order
         self.fields: list[dict[str, str]] = []   # each event's "id:" and "event:" lines
+        self.blocks: list[bytes] = []            # each event's lines as they came (without the blank line)
         self.arrivals: list[float] = []          # monotonic time each event was parsed
         self.status, self.headers, self.body = self._head(timeout)
 
@@ -124,6 +126,7 @@ class EventStream:
                     fields[key] = value.strip()
             if data:
                 self.events.append(json.loads(b"\n".join(data)))
+                self.blocks.append(block)
                 self.fields.append(fields)
                 self.arrivals.append(time.monotonic())
 

@@ -17,7 +17,7 @@ from app.sse import channel
 from ipc import events
 from ipc.server import bind_publisher
 
-KEY = events.trigger_event_key("trig_00000000000000bb")
+KEY = events.trigger_group_key("data", "array", "/channel")
 
 
 def test_a_wait_returns_once_the_key_is_seen_and_not_before():
@@ -26,7 +26,7 @@ def test_a_wait_returns_once_the_key_is_seen_and_not_before():
     waiter = gevent.spawn(confirmations.wait, KEY, timeout=5)
     gevent.sleep(0.05)
     assert not waiter.ready()  # nothing seen yet: the stream does not open
-    confirmations.seen(b"t|e|trig_other|")  # another key's message is no confirmation
+    confirmations.seen(events.trigger_group_key("data", "base64", "/channel"))  # another key's message is no confirmation
     gevent.sleep(0.05)
     assert not waiter.ready()
     confirmations.seen(KEY)

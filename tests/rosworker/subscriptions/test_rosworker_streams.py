@@ -288,7 +288,7 @@ def test_a_pooled_topic_gets_one_frame_a_tick_however_many_subscriptions_watch_i
 
 
 def test_each_subscription_is_confirmed_and_what_is_sent_after_the_confirmation_arrives(streams):
-    key = events.trigger_event_key("trig_00000000000000aa")
+    key = events.trigger_group_key("data", "array", "/confirmed")
     before = streams.stats.subscriptions_confirmed
     subs = []
     try:

@@ -122,27 +122,72 @@ def test_every_condition_answers_a_boolean_for_any_values(previous, current, low
     assert fires(cond, MISSING, current) in (True, False)
 
 
-def test_a_trigger_observes_a_change_through_its_path_and_fires_with_the_payload_in_its_mode():
+def _trigger(n: int, **fields):
     from rosworker.triggers.registry import Trigger
-    from rosworker.triggers.sources import TriggerObserver
 
-    trigger = Trigger(id="trig_0000000000000001", collection="apps", entity_id="a", resource="/r", source="data",
-                      target="/t", bytes="base64", path="/level", condition={"condition_type": "OnChange"},
-                      multishot=True, persistent=False, lifetime=None, created_at_ns=0, client="", status="active")
+    return Trigger(**{"id": f"trig_{n:016x}", "collection": "apps", "entity_id": "a", "resource": "/r",
+                      "source": "data", "target": "/t", "bytes": "array", "path": "/level",
+                      "condition": {"condition_type": "OnChange"}, "multishot": True, "persistent": False,
+                      "lifetime": None, "created_at_ns": 0, "client": "", "status": "active", **fields})
+
+
+def test_a_group_evaluates_each_trigger_through_its_path_and_hands_on_those_that_fired_together():
+    from rosworker.triggers.sources import TriggerGroup
+
+    on_change, base64, whole = _trigger(1), _trigger(2, bytes="base64"), _trigger(3, path="")
+    to_four = _trigger(4, condition={"condition_type": "OnChangeTo", "target_value": 4})
     fired: list = []
-    observer = TriggerObserver(trigger, lambda t, stamp, **kw: fired.append((t.id, stamp, kw)))
+    group = TriggerGroup("data", "/t", lambda stamp, triggers, **kw: fired.append(
+        (stamp, [t.id for t in triggers], sorted(kw))))
+    group.triggers += [on_change, base64, whole, to_four]
     asked: list[str] = []
 
     def payload(mode: str) -> bytes:
         asked.append(mode)
         return b"text in " + mode.encode()
 
-    assert (observer.target, observer.bytes) == ("/t", "base64")
-    observer.changed(1, {"level": 3}, payload)
-    observer.changed(2, {"level": 3}, payload)        # no change: no event, no payload made
-    observer.changed(3, {"other": 1}, payload)        # no value at the path: not evaluated
-    observer.changed(4, {"level": 4}, payload)
-    observer.failed(5, "cannot be decoded")
-    assert fired == [(trigger.id, 1, {"payload": b"text in base64"}), (trigger.id, 4, {"payload": b"text in base64"}),
-                     (trigger.id, 5, {"error": "cannot be decoded"})]
-    assert asked == ["base64", "base64"]
+    group.changed(1, {"level": 3}, payload)
+    group.changed(2, {"level": 3}, payload)        # no change: nothing fired, nothing handed on
+    group.changed(3, {"other": 1}, payload)        # no value at the path: only the whole-message one
+    group.changed(4, {"level": 4}, payload)
+    group.failed(5, "cannot be decoded")
+    ids = [t.id for t in (on_change, base64, whole, to_four)]
+    assert fired == [(1, ids[:3], ["payload"]), (3, [ids[2]], ["payload"]), (4, ids, ["payload"]),
+                     (5, ids, ["error"])]
+    assert asked == []  # the group makes no payload: the registry asks once per bytes mode
+
+
+def test_one_change_that_fires_several_triggers_is_one_frame_per_bytes_mode_with_each_ones_seq():
+    from ipc import events, protocol
+    from rosworker.core.stats import Stats
+    from rosworker.triggers.registry import TriggerRegistry
+
+    sent: list[list[bytes]] = []
+    registry = TriggerRegistry.__new__(TriggerRegistry)  # fire() alone: no executor, store nor notifier
+    registry._send, registry.stats = sent.append, Stats(1, 1, 1)
+    registry._terminate = lambda trigger: setattr(trigger, "status", "terminated")
+    multi, other, once, b64 = _trigger(1), _trigger(2), _trigger(3, multishot=False), _trigger(4, bytes="base64")
+    for n, trigger in enumerate((multi, other, once, b64)):
+        trigger.seq = 100 * n
+    asked: list[str] = []
+
+    def payload(mode: str) -> bytes:
+        asked.append(mode)
+        return mode.encode()
+
+    registry.fire(7, [multi, other, once, b64], payload=payload)
+    assert asked == ["array", "base64"]  # each payload made once
+    assert [f[0] for f in sent] == [events.trigger_group_key("data", "array", "/t"),
+                                    events.trigger_group_key("data", "base64", "/t")]
+    assert protocol.unpack(sent[0][1]) == {"ts": 7, "fired": [[multi.id, 1, False], [other.id, 101, False],
+                                                              [once.id, 201, True]]}
+    assert sent[0][2] == b"array" and sent[1][2] == b"base64"
+    assert protocol.unpack(sent[1][1]) == {"ts": 7, "fired": [[b64.id, 301, False]]}
+    assert once.status == "terminated" and multi.last_event == (7, 1, b"array", None)
+    assert (registry.stats.trigger_frames, registry.stats.trigger_events) == (2, 4)
+    sent.clear()
+    registry.fire(8, [multi, other, once], error="unreadable")  # the terminated one-shot is no longer fired
+    assert len(sent) == 1 and sent[0][2] == b""
+    assert protocol.unpack(sent[0][1]) == {"ts": 8, "error": "unreadable",
+                                           "fired": [[multi.id, 2, False], [other.id, 102, False]]}
+    assert events.trigger_group_key("data", "array", "/t") != events.trigger_group_key("data", "array", "/u")

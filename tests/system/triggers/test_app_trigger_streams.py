@@ -451,6 +451,8 @@ def test_a_1khz_topic_with_50_triggers_costs_one_take_per_message_and_counts_wha
             fired = after["trigger_events"] - before["trigger_events"]
             assert 0 < took <= rate * (t1 - t0) * 1.2 + 100  # at most one take per message published
             assert fired == 50 * took or abs(fired - 50 * took) <= 50 * 2  # each trigger fires on each change
+            frames = after["trigger_frames"] - before["trigger_frames"]
+            assert abs(frames - took) <= 2  # one frame a message crossed to the HTTP workers, for all 50
             assert (cpu1 - cpu0) / (t1 - t0) < 1.8  # generous: bounded, not a hang or a spin on two cores
             events = reader.collect(1.0)
             values = [e["payload"]["data"] for e in events]
