@@ -37,11 +37,13 @@ from __future__ import annotations
 import contextlib
 import logging
 import threading
+import time
 from collections.abc import Callable, Sequence
 
 log = logging.getLogger("sovd.rosworker.waiter")
 
 RELEASE_TIMEOUT = 5.0   # seconds the ROS thread waits for this thread to leave rcl_wait (it takes µs)
+FAILURE_PAUSE = 0.05    # seconds this thread pauses after a wait that failed, before it wakes the ROS thread
 
 
 class Waiter:
@@ -67,6 +69,7 @@ class Waiter:
         self._fired = False              # something was ready: the ROS thread has not looked yet
         self._stopping = False
         self.reports = 0                 # times it woke the ROS thread
+        self.failures = 0                # waits that failed (logged the first time and every 1000th)
         self._thread = threading.Thread(target=self._run, name="ros-waiter", daemon=True)
 
     def start(self) -> None:
@@ -132,7 +135,10 @@ class Waiter:
                 try:
                     ready = self._wait(armed)
                 except Exception:  # noqa: BLE001 - a wait set that could not be made: wake the ROS thread
-                    log.exception("waiting on %d ROS entities failed", len(armed))
+                    self.failures += 1
+                    if self.failures == 1 or self.failures % 1000 == 0:
+                        log.exception("waiting on %d ROS entities failed (%d times)", len(armed), self.failures)
+                    time.sleep(FAILURE_PAUSE)  # its pollers look at their entities: no spin if it persists
                     ready = True
                 with self._cond:
                     # Only the guard, and nobody asked: left triggered by an earlier hand-off; wait again.
