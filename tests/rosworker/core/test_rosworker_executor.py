@@ -64,8 +64,7 @@ def test_cold_wait_cap_sheds_excess_cold_callers_while_warm_topics_answer(nodes)
 def test_watchdog_trips_once_per_episode_and_clears_when_idle():
     worker = RosWorker(watchdog_threshold=200, debug_commands=True)
     try:
-        done = threading.Thread(target=lambda: worker.call("debug_sleep", {"seconds": 1.5}, timeout=10))
-        done.start()
+        done = worker.busy(1.5)
         poll_until(lambda: worker.stats()["executor"]["degraded"], 5, message="degraded")
         busy = worker.stats()["executor"]   # readable while the ROS thread is stuck
         assert busy["watchdog_trips"] == 1
@@ -82,8 +81,7 @@ def test_watchdog_trips_once_per_episode_and_clears_when_idle():
 def test_full_queue_answers_backpressure_at_once_and_counts_drops():
     worker = RosWorker(max_queue_depth=2, debug_commands=True)
     try:
-        blocker = threading.Thread(target=lambda: worker.call("debug_sleep", {"seconds": 2}, timeout=10))
-        blocker.start()
+        blocker = worker.busy(2)
         poll_until(lambda: worker.stats()["executor"]["current_task_age_ms"] > 0, 5, message="busy")
         outcomes: list = []
 
@@ -114,13 +112,7 @@ def test_shutdown_wakes_waiters_drains_and_exits_zero(nodes):
     topic = unique_topic("never")
     nodes.append(silent([topic]))
     worker = RosWorker()
-    poll_until(lambda: any(t["name"] == topic for t in worker.call("graph")["topics"]), 10,
-               message="silent publisher discovered")
-    answers: list = []
-    waiter = threading.Thread(target=lambda: answers.append(worker.sample(topic, timeout_ms=20000)))
-    waiter.start()
-    poll_until(lambda: worker.stats()["data_provider"]["concurrent_cold_waits"] == 1, 5,
-               message="cold waiter")
+    waiter, answers = worker.cold_waiter(topic)
     started = time.monotonic()
     worker.signal(15)
     code = worker.proc.wait(10)
