@@ -19,6 +19,26 @@ from tests.support.rospub import RosNode, publisher, unique_topic
 from tests.support.rosworker import RosWorker
 
 
+@pytest.fixture
+def dealer():
+    """``dealer(runtime_dir)``: a bare DEALER socket on that ROS worker's work socket, as a hand-made or hostile
+    client has one; closed after the test."""
+    ctx = zmq.Context()
+    socks: list[zmq.Socket] = []
+
+    def make(runtime_dir: str) -> zmq.Socket:
+        sock = ctx.socket(zmq.DEALER)
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.connect(protocol.endpoint(runtime_dir))
+        socks.append(sock)
+        return sock
+
+    yield make
+    for sock in socks:
+        sock.close()
+    ctx.term()
+
+
 def silent(topics: list[str]) -> RosNode:
     """A node with publishers that exist in the graph but will not publish for a long time."""
     return RosNode({"node": "silent", "publish": [
@@ -176,12 +196,9 @@ def test_runtime_dir_and_socket_are_private():
         worker.stop()
 
 
-def test_hostile_ipc_frames_get_an_error_or_are_dropped_and_the_worker_keeps_serving():
+def test_hostile_ipc_frames_get_an_error_or_are_dropped_and_the_worker_keeps_serving(dealer):
     worker = RosWorker()
-    ctx = zmq.Context()
-    sock = ctx.socket(zmq.DEALER)
-    sock.setsockopt(zmq.LINGER, 0)
-    sock.connect(protocol.endpoint(worker.runtime_dir))
+    sock = dealer(worker.runtime_dir)
 
     def ask(frames, expect_reply: bool):
         sock.send_multipart(frames)
@@ -220,27 +237,20 @@ def test_hostile_ipc_frames_get_an_error_or_are_dropped_and_the_worker_keeps_ser
         good = {"v": 1, "id": 13, "cmd": "pool", "args": {}, "deadline_ms": 1000, "request_id": "a-Z_0.9"}
         assert ask([msgpack.packb(good)], expect_reply=True)["ok"] is True
         # An oversized frame: zmq drops the connection of a peer that sends one.
-        big = ctx.socket(zmq.DEALER)
-        big.setsockopt(zmq.LINGER, 0)
-        big.connect(protocol.endpoint(worker.runtime_dir))
+        big = dealer(worker.runtime_dir)
         big.send(b"\x00" * (protocol.MAX_FRAME + 10))
         big.close()
         assert worker.call("ping")["pid"] == worker.pid
         assert worker.stats()["details"]["ipc_dropped_frames"] >= 6
         assert worker.proc.poll() is None
     finally:
-        sock.close()
-        ctx.term()
         worker.stop()
 
 
-def test_ping_and_stats_are_refused_on_the_work_socket_and_answered_on_the_control_socket():
+def test_ping_and_stats_are_refused_on_the_work_socket_and_answered_on_the_control_socket(dealer):
     """The control socket is their only home: no in-tree client sends them to the work socket."""
     worker = RosWorker()
-    ctx = zmq.Context()
-    sock = ctx.socket(zmq.DEALER)
-    sock.setsockopt(zmq.LINGER, 0)
-    sock.connect(protocol.endpoint(worker.runtime_dir))
+    sock = dealer(worker.runtime_dir)
     try:
         for rid, cmd in enumerate(protocol.IMMEDIATE, 1):
             sock.send(msgpack.packb({"v": 1, "id": rid, "cmd": cmd, "args": {}, "deadline_ms": 1000}))
@@ -252,20 +262,15 @@ def test_ping_and_stats_are_refused_on_the_work_socket_and_answered_on_the_contr
         assert worker.call("ping")["pid"] == worker.pid  # the client sends them to the control socket
         assert "executor" in worker.stats()
     finally:
-        sock.close()
-        ctx.term()
         worker.stop()
 
 
-def test_ping_and_stats_never_wait_behind_a_queue_of_short_tasks():
+def test_ping_and_stats_never_wait_behind_a_queue_of_short_tasks(dealer):
     """120 tasks of 15 ms each once kept ``stats`` waiting 1.8 s: /health said the worker was dead.
 
     Here 400 tasks of 4 ms: each far below any take-over threshold, 1.6 s together."""
     gw = Gateway("--debug-commands", "--max-queue-depth", "1000", "--log-level", "warning")
-    ctx = zmq.Context()
-    flood = ctx.socket(zmq.DEALER)
-    flood.setsockopt(zmq.LINGER, 0)
-    flood.connect(protocol.endpoint(gw.runtime_dir))
+    flood = dealer(gw.runtime_dir)
     client = gw.rosworker_client()
     try:
         for rid in range(400):
@@ -288,8 +293,6 @@ def test_ping_and_stats_never_wait_behind_a_queue_of_short_tasks():
         assert replies == set(range(400))   # and every queued task was served
     finally:
         client.close()
-        flood.close()
-        ctx.term()
         gw.stop()
 
 
