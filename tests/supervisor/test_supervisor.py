@@ -24,6 +24,7 @@ from common.harness.procs import Proc, free_port, poll_until
 from ipc import protocol
 from ipc.client import RosWorkerClient
 from tests.support.rospub import publisher
+from tests.support.rosworker import call_once
 
 BIN = Path(sys.executable).parent
 TOPIC = "/sup_test/temperature"
@@ -128,22 +129,21 @@ def wait_for_data(gw: Gateway, comp: str, topic: str = TOPIC) -> dict:
     return poll_until(ok, 30, interval=0.2, message=f"status data on {topic}")
 
 
-def all_gone(pids: list[int]) -> bool:
-    for pid in pids:
-        try:
-            if psutil.Process(pid).status() != psutil.STATUS_ZOMBIE:
-                return False
-        except psutil.NoSuchProcess:
-            continue
-    return True
+def descendants(gw: Proc) -> list[int]:
+    return [p.pid for p in psutil.Process(gw.pid).children(recursive=True)]
 
 
-def pooled(runtime_dir: str) -> list[str]:
-    client = RosWorkerClient.for_runtime_dir(runtime_dir)
-    try:
-        return client.call("pool", timeout=2)["topics"]
-    finally:
-        client.close()
+def wait_all_gone(pids: list[int], timeout: float, message: str) -> None:
+    """Until none of ``pids`` runs (a zombie counts as gone)."""
+    def all_gone() -> bool:
+        for pid in pids:
+            try:
+                if psutil.Process(pid).status() != psutil.STATUS_ZOMBIE:
+                    return False
+            except psutil.NoSuchProcess:
+                continue
+        return True
+    poll_until(all_gone, timeout, message=message)
 
 
 def pings_after(notify: NotifyListener, marker: str) -> int:
@@ -173,13 +173,13 @@ def test_signal_stops_everything_and_leaves_nothing(sig):
     gw = Gateway()
     try:
         worker = worker_pid(gw)
-        children = [p.pid for p in psutil.Process(gw.pid).children(recursive=True)]
+        children = descendants(gw)
         assert worker in children
         assert len(children) >= 3, "ROS worker, gunicorn master and at least one HTTP worker"
         gw.signal(sig)
         code = gw.proc.wait(timeout=10)  # the contract: everything stops within 10 s
         assert code == 0, "\n".join(gw.output[-30:])
-        poll_until(lambda: all_gone(children), 5, message="every child gone")
+        wait_all_gone(children, 5, "every child gone")
         text = "\n".join(gw.output)
         assert f"{signal.Signals(sig).name} received: stopping" in text
         # Ordered: gunicorn is stopped before the ROS worker.
@@ -338,14 +338,15 @@ def test_hot_topics_are_warm_again_after_a_crash(temperature_pub):
     try:
         comp = host_id(gw)
         wait_for_data(gw, comp)
-        assert TOPIC in pooled(gw.runtime_dir)
+        assert TOPIC in call_once(gw.runtime_dir, "pool", timeout=2)["topics"]
         state = os.path.join(gw.runtime_dir, "restart-state.json")
         poll_until(lambda: TOPIC in Path(state).read_text(), 15, message="pool list saved")
         old = worker_pid(gw)
         os.kill(old, signal.SIGKILL)
         poll_until(lambda: alive_again(gw, old), 30, interval=0.1, message="ROS worker back")
         # Pooled again by the new worker itself, before any client read it.
-        poll_until(lambda: TOPIC in pooled(gw.runtime_dir), 20, message="topic re-warmed")
+        poll_until(lambda: TOPIC in call_once(gw.runtime_dir, "pool", timeout=2)["topics"], 20,
+                   message="topic re-warmed")
     finally:
         assert gw.stop() == 0
 
@@ -586,10 +587,10 @@ def test_sigterm_while_starting_stops_cleanly(tmp_path):
     gw = _gateway_proc(str(tmp_path))
     try:
         poll_until(lambda: rosworker_of(gw), 30, interval=0.01, message="ROS worker started")
-        children = [p.pid for p in psutil.Process(gw.pid).children(recursive=True)]
+        children = descendants(gw)
         gw.signal(signal.SIGTERM)
         assert gw.proc.wait(timeout=10) == 0
-        poll_until(lambda: all_gone(children), 5, message="children gone")
+        wait_all_gone(children, 5, "children gone")
     finally:
         gw.stop()
 
@@ -598,11 +599,11 @@ def test_children_die_with_a_killed_supervisor():
     """SIGKILL of the supervisor (no chance to clean up): the parent-death signal ends the children."""
     gw = Gateway()
     try:
-        children = [p.pid for p in psutil.Process(gw.pid).children(recursive=True)]
+        children = descendants(gw)
         assert len(children) >= 3
         os.kill(gw.pid, signal.SIGKILL)
         gw.proc.wait(timeout=10)
-        poll_until(lambda: all_gone(children), 20, message="children gone after the supervisor died")
+        wait_all_gone(children, 20, "children gone after the supervisor died")
     finally:
         gw.stop()
 
@@ -617,6 +618,6 @@ def test_gunicorn_dying_ends_the_service():
         code = poll_until(lambda: gw.proc.poll(), 20, message="supervisor exits")
         assert code == 1
         assert f"gunicorn pid {master.pid} was killed by SIGKILL unexpectedly; stopping" in "\n".join(gw.output)
-        poll_until(lambda: all_gone([worker, *http_workers]), 10, message="everything gone")
+        wait_all_gone([worker, *http_workers], 10, "everything gone")
     finally:
         gw.stop()

@@ -17,6 +17,15 @@ BIN = Path(sys.executable).parent
 SHADOW = Path(__file__).parent / "shadow"
 
 
+def call_once(runtime_dir: str, cmd: str, args: dict | None = None, timeout: float = 5.0) -> dict:
+    """One call to the ROS worker of ``runtime_dir`` (a gateway's too) on a client of its own, closed after."""
+    client = RosWorkerClient.for_runtime_dir(runtime_dir)
+    try:
+        return client.call(cmd, args, timeout=timeout)
+    finally:
+        client.close()
+
+
 class RosWorker(Proc):
     """``sovd-rosworker --runtime-dir <tmp> --<setting> <value> ...``; ready once it answers ping."""
 
