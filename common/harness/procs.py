@@ -129,7 +129,7 @@ def free_port() -> int:
 
 class Proc:
     """A child process whose stdout lines are collected by a reader thread (``stdin``: a pipe to
-    write commands to, ``proc.stdin``, text).
+    write commands to, ``proc.stdin``, text).  ``with Proc(...) as p:`` stops it at the block's end.
 
     With ``log_path`` its output goes to that file instead (no reader thread;
     :meth:`wait_line` is then not available, :meth:`tail` reads the file).
@@ -188,6 +188,12 @@ class Proc:
                 continue
             if predicate(line):
                 return line
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
 
     def signal(self, sig: int) -> None:
         if self.proc.poll() is None:

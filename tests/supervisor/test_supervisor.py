@@ -170,8 +170,7 @@ def test_reads_a_live_value_end_to_end(temperature_pub):
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_signal_stops_everything_and_leaves_nothing(sig):
-    gw = Gateway()
-    try:
+    with Gateway() as gw:
         worker = worker_pid(gw)
         children = descendants(gw)
         assert worker in children
@@ -184,8 +183,6 @@ def test_signal_stops_everything_and_leaves_nothing(sig):
         assert f"{signal.Signals(sig).name} received: stopping" in text
         # Ordered: gunicorn is stopped before the ROS worker.
         assert text.index("stopping gunicorn") < text.index("stopping ROS worker")
-    finally:
-        gw.stop()
 
 
 def test_in_flight_request_finishes_on_sigterm():
@@ -414,8 +411,7 @@ def test_degraded_worker_stops_the_watchdog_and_is_replaced(notify):
 
 
 def test_restart_limit_ends_the_service():
-    gw = Gateway("--restart-limit", "2", "--restart-window", "300")
-    try:
+    with Gateway("--restart-limit", "2", "--restart-window", "300") as gw:
         for attempt in (1, 2):
             old = worker_pid(gw)
             os.kill(old, signal.SIGKILL)
@@ -427,8 +423,6 @@ def test_restart_limit_ends_the_service():
         text = "\n".join(gw.output)
         assert "restart_limit 2): giving up" in text
         assert text.count("restarting ROS worker (attempt") == 2
-    finally:
-        gw.stop()
 
 
 # A process that takes the ROS worker's lock as soon as it is free and holds it until SIGTERM:
@@ -584,33 +578,26 @@ def test_pool_list_survives_in_the_runtime_dir_only(temperature_pub):
 
 # ---- the supervisor itself goes away, or gunicorn does --------------------------------------------
 def test_sigterm_while_starting_stops_cleanly(tmp_path):
-    gw = _gateway_proc(str(tmp_path))
-    try:
+    with _gateway_proc(str(tmp_path)) as gw:
         poll_until(lambda: rosworker_of(gw), 30, interval=0.01, message="ROS worker started")
         children = descendants(gw)
         gw.signal(signal.SIGTERM)
         assert gw.proc.wait(timeout=10) == 0
         wait_all_gone(children, 5, "children gone")
-    finally:
-        gw.stop()
 
 
 def test_children_die_with_a_killed_supervisor():
     """SIGKILL of the supervisor (no chance to clean up): the parent-death signal ends the children."""
-    gw = Gateway()
-    try:
+    with Gateway() as gw:
         children = descendants(gw)
         assert len(children) >= 3
         os.kill(gw.pid, signal.SIGKILL)
         gw.proc.wait(timeout=10)
         wait_all_gone(children, 20, "children gone after the supervisor died")
-    finally:
-        gw.stop()
 
 
 def test_gunicorn_dying_ends_the_service():
-    gw = Gateway()
-    try:
+    with Gateway() as gw:
         worker = worker_pid(gw)
         master = next(c for c in psutil.Process(gw.pid).children() if c.pid != worker)
         http_workers = [c.pid for c in master.children()]
@@ -619,5 +606,3 @@ def test_gunicorn_dying_ends_the_service():
         assert code == 1
         assert f"gunicorn pid {master.pid} was killed by SIGKILL unexpectedly; stopping" in "\n".join(gw.output)
         wait_all_gone([worker, *http_workers], 10, "everything gone")
-    finally:
-        gw.stop()

@@ -50,8 +50,7 @@ def test_cold_wait_cap_sheds_excess_cold_callers_while_warm_topics_answer(nodes)
     warm = unique_topic("warm")
     nodes.append(silent(cold))
     nodes.append(publisher("warm", warm, "std_msgs/msg/String", {"data": "w"}, rate=20))
-    worker = RosWorker(cold_wait_cap=2)
-    try:
+    with RosWorker(cold_wait_cap=2) as worker:
         worker.sample_data(warm)
         poll_until(lambda: sum(t["name"] in cold for t in worker.call("graph")["topics"]) == 3, 10,
                    message="silent publishers discovered")
@@ -77,13 +76,10 @@ def test_cold_wait_cap_sheds_excess_cold_callers_while_warm_topics_answer(nodes)
             t.join(15)
         assert [a["reason"] for a in answers] == ["timeout", "timeout"]
         assert worker.stats()["data_provider"]["concurrent_cold_waits"] == 0
-    finally:
-        worker.stop()
 
 
 def test_watchdog_trips_once_per_episode_and_clears_when_idle():
-    worker = RosWorker(watchdog_threshold=200, debug_commands=True)
-    try:
+    with RosWorker(watchdog_threshold=200, debug_commands=True) as worker:
         done = worker.busy(1.5)
         poll_until(lambda: worker.stats()["executor"]["degraded"], 5, message="degraded")
         busy = worker.stats()["executor"]   # readable while the ROS thread is stuck
@@ -94,13 +90,10 @@ def test_watchdog_trips_once_per_episode_and_clears_when_idle():
         after = worker.stats()["executor"]
         assert after["watchdog_trips"] == 1
         assert after["max_task_latency_us"] >= 1_400_000
-    finally:
-        worker.stop()
 
 
 def test_full_queue_answers_backpressure_at_once_and_counts_drops():
-    worker = RosWorker(max_queue_depth=2, debug_commands=True)
-    try:
+    with RosWorker(max_queue_depth=2, debug_commands=True) as worker:
         blocker = worker.busy(2)
         poll_until(lambda: worker.stats()["executor"]["current_task_age_ms"] > 0, 5, message="busy")
         outcomes: list = []
@@ -124,8 +117,6 @@ def test_full_queue_answers_backpressure_at_once_and_counts_drops():
         executor = worker.stats()["executor"]
         assert executor["queue_dropped"] == len(errors)
         assert executor["queue_max_depth_observed"] == 2
-    finally:
-        worker.stop()
 
 
 def test_shutdown_wakes_waiters_drains_and_exits_zero(nodes):
@@ -176,24 +167,18 @@ def test_every_waiter_hears_the_shutdown_answer_before_the_socket_closes(nodes):
 
 
 def test_second_worker_on_the_same_runtime_dir_refuses_to_start():
-    worker = RosWorker()
-    try:
+    with RosWorker() as worker:
         second = RosWorker(runtime_dir=worker.runtime_dir, wait=False)
         assert second.proc.wait(30) == 3
         assert any("already serves" in line for line in second.output)
         assert worker.call("ping")["pid"] == worker.pid   # the socket was not stolen
-    finally:
-        worker.stop()
 
 
 def test_runtime_dir_and_socket_are_private():
-    worker = RosWorker()
-    try:
+    with RosWorker() as worker:
         assert os.stat(worker.runtime_dir).st_mode & 0o777 == 0o700
         sock = os.path.join(worker.runtime_dir, protocol.SOCKET_NAME)
         assert os.stat(sock).st_mode & 0o077 == 0
-    finally:
-        worker.stop()
 
 
 def test_hostile_ipc_frames_get_an_error_or_are_dropped_and_the_worker_keeps_serving(dealer):
