@@ -13,9 +13,9 @@
 
 With ``auth_enabled`` off every one answers 404 ``Authentication is not enabled`` (medkit), but
 ``whoami`` with the legacy ``api_token``.  Bodies are medkit's OAuth2 ones
-(``app/auth/__init__.py``'s ``oauth_response``, the handler of an ``OAuthError`` a route raises).  Failed grants spend the address's failure
-budget, and an address without one is answered 429 before any secret is compared
-(``failures.py``).  These routes never need a token themselves.
+(``app/auth/__init__.py``'s ``oauth_response``, the handler of an ``OAuthError`` a route raises).
+Failed grants spend the address's failure budget, and an address without one is answered 429
+before any secret is compared (``failures.py``).  These routes never need a token themselves.
 """
 
 from __future__ import annotations
