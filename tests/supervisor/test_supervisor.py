@@ -153,6 +153,18 @@ def pings_after(notify: NotifyListener, marker: str) -> int:
     return 0 if start is None else fields[start:].count("WATCHDOG=1")
 
 
+def replaced(notify: NotifyListener, trouble: str, old: int) -> tuple[list[str], int, int, int]:
+    """Once WATCHDOG=1 comes again after the ROS worker ``old`` was replaced: the notify fields, and where the
+    first ``trouble`` field, the kill of ``old`` and the worker ready again stand in them (in that order)."""
+    poll_until(lambda: pings_after(notify, "ready again") >= 2, 30, message="WATCHDOG=1 again after the restart")
+    fields = notify.fields()
+    began = next(i for i, f in enumerate(fields) if trouble in f)
+    killed = next(i for i, f in enumerate(fields) if f"killing ROS worker pid {old}" in f)
+    back = next(i for i, f in enumerate(fields) if i > killed and "ready again" in f)
+    assert began < killed < back
+    return fields, began, killed, back
+
+
 # ---- start, read, stop -------------------------------------------------------------------------
 def test_reads_a_live_value_end_to_end(temperature_pub):
     gw = Gateway()
@@ -361,13 +373,7 @@ def test_hung_worker_stops_the_watchdog_and_is_replaced(notify):
                    20, message="not-answering status")
         poll_until(lambda: alive_again(gw, old), 40, interval=0.1, message="hung worker replaced")
         assert not psutil.pid_exists(old) or psutil.Process(old).status() == psutil.STATUS_ZOMBIE
-        poll_until(lambda: pings_after(notify, "ready again") >= 2, 30,
-                   message="WATCHDOG=1 again after the restart")
-        fields = notify.fields()
-        silent_from = next(i for i, f in enumerate(fields) if "not answering" in f)
-        killed = next(i for i, f in enumerate(fields) if f"killing ROS worker pid {old}" in f)
-        back = next(i for i, f in enumerate(fields) if i > killed and "ready again" in f)
-        assert silent_from < killed < back
+        fields, silent_from, killed, back = replaced(notify, "not answering", old)
         assert "WATCHDOG=1" not in fields[silent_from:back], "WATCHDOG=1 sent while the worker hung"
         assert any("restarting ROS worker (attempt 1/5)" in f for f in fields[killed:back])
     finally:
@@ -397,13 +403,7 @@ def test_degraded_worker_stops_the_watchdog_and_is_replaced(notify):
         poll_until(lambda: notify.has(lambda f: f.startswith(f"STATUS=ROS worker pid {old} degraded")),
                    20, message="degraded status")
         poll_until(lambda: alive_again(gw, old), 40, interval=0.1, message="stuck worker replaced")
-        poll_until(lambda: pings_after(notify, "ready again") >= 2, 30,
-                   message="WATCHDOG=1 again after the restart")
-        fields = notify.fields()
-        degraded = next(i for i, f in enumerate(fields) if "degraded" in f)
-        killed = next(i for i, f in enumerate(fields) if f"killing ROS worker pid {old}" in f)
-        back = next(i for i, f in enumerate(fields) if i > killed and "ready again" in f)
-        assert degraded < killed < back
+        fields, degraded, _, back = replaced(notify, "degraded", old)
         assert "WATCHDOG=1" not in fields[degraded:back], "WATCHDOG=1 sent while degraded"
     finally:
         client.close()
