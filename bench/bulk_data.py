@@ -13,6 +13,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import shutil
@@ -60,11 +61,12 @@ def _health(gw: Gateway) -> dict[str, Any]:
 
 # ---- recording 10 topics vs pooling them ---------------------------------------------------------------
 def measure_cpu_ratio(p: dict, log_dir: str) -> dict[str, Any]:
-    pub = robot(PUBLISHER_NODE, [{"prefix": "/bench/rec/t", "count": len(TOPICS), "rate": RATE_HZ, "kind": "small"}])
-    recording = pooled = None
-    try:
-        recording = _gateway(log_dir, "recording", "--fault-rosbag-enabled", "--fault-rosbag-topics", ",".join(TOPICS))
-        pooled = _gateway(log_dir, "pooled")
+    with contextlib.ExitStack() as running:
+        running.enter_context(robot(PUBLISHER_NODE, [{"prefix": "/bench/rec/t", "count": len(TOPICS), "rate": RATE_HZ,
+                                                      "kind": "small"}]))
+        recording = running.enter_context(_gateway(log_dir, "recording", "--fault-rosbag-enabled",
+                                                   "--fault-rosbag-topics", ",".join(TOPICS)))
+        pooled = running.enter_context(_gateway(log_dir, "pooled"))
         client = pooled.rosworker_client()
         try:
             poll_until(lambda: all(client.call("subscribe", {"topic": t}, 5)["status"] == "pooled" for t in TOPICS),
@@ -77,26 +79,22 @@ def measure_cpu_ratio(p: dict, log_dir: str) -> dict[str, Any]:
         taken = _health(recording)["rosbag_messages"]
         cpu = measure_cpu({"recording": recording.rosworker(), "pooled": pooled.rosworker()}, p["cpu_s"])
         taken = _health(recording)["rosbag_messages"] - taken
-    finally:
-        for gw in (recording, pooled):
-            if gw is not None:
-                gw.stop()
-        pub.stop()
     return {"cpu": cpu, "messages_taken": taken}
 
 
 # ---- warm samples during a recording's write ----------------------------------------------------------
 def measure_write_latency(p: dict, log_dir: str) -> dict[str, Any]:
-    pub = robot(PUBLISHER_NODE, [{"prefix": "/bench/rec/t", "count": len(TOPICS), "rate": RATE_HZ, "kind": "small"},
-                                 {"topic": IMAGE, "rate": 10, "kind": "image"}])
-    gw = diag = None
     quiet: list[float] = []
     during: list[float] = []
-    written = 0
-    try:
-        gw = _gateway(log_dir, "write", "--fault-rosbag-enabled", "--fault-rosbag-topics", ",".join([*TOPICS, IMAGE]),
-                      "--fault-rosbag-duration-after-s", "0.5")
-        diag = DiagPub("bench_rec_diag", rate=10).matched()
+    with contextlib.ExitStack() as running:
+        running.enter_context(robot(PUBLISHER_NODE, [
+            {"prefix": "/bench/rec/t", "count": len(TOPICS), "rate": RATE_HZ, "kind": "small"},
+            {"topic": IMAGE, "rate": 10, "kind": "image"}]))
+        gw = running.enter_context(_gateway(log_dir, "write", "--fault-rosbag-enabled", "--fault-rosbag-topics",
+                                            ",".join([*TOPICS, IMAGE]), "--fault-rosbag-duration-after-s", "0.5"))
+        diag = DiagPub("bench_rec_diag", rate=10)
+        running.callback(diag.stop)
+        diag.matched()
         poll_until(lambda: gw.get(f"/apps/{PUBLISHER_NODE}").status_code == 200, 30, message="the publisher")
         url = f"{gw.api}/apps/{PUBLISHER_NODE}/data{TOPICS[0]}"
         session = requests.Session()
@@ -123,12 +121,6 @@ def measure_write_latency(p: dict, log_dir: str) -> dict[str, Any]:
             diag.set([{"name": f"bench recording {i}", "level": 0, "message": "ok"}])
             time.sleep(5.5)  # the ring fills again: the next write is as large
         written = _health(gw)["rosbag_recordings_written"]
-    finally:
-        if diag is not None:
-            diag.stop()
-        if gw is not None:
-            gw.stop()
-        pub.stop()
     return {"quiet_ms": quiet, "during_ms": during, "written": written}
 
 
@@ -190,15 +182,17 @@ http {{
 
 
 def measure_download(p: dict, log_dir: str) -> dict[str, Any]:
-    state = tempfile.mkdtemp(prefix="bench-bulk-")
-    pub = robot(PUBLISHER_NODE, [{"prefix": "/bench/rec/t", "count": 1, "rate": 1, "kind": "small"}])
-    gw = nginx = None
     rates: dict[str, list[float]] = {"gateway": [], "nginx": []}
-    try:
+    with contextlib.ExitStack() as running:
+        state = tempfile.mkdtemp(prefix="bench-bulk-")
+        running.callback(shutil.rmtree, state, ignore_errors=True)
+        running.enter_context(robot(PUBLISHER_NODE, [{"prefix": "/bench/rec/t", "count": 1, "rate": 1,
+                                                      "kind": "small"}]))
         meta = write_recording(os.path.join(state, "rosbags"), p["download_mb"], f"/{PUBLISHER_NODE}")
-        gw = _gateway(log_dir, "download", "--state-dir", state)
+        gw = running.enter_context(_gateway(log_dir, "download", "--state-dir", state))
         poll_until(lambda: gw.get(f"/apps/{PUBLISHER_NODE}").status_code == 200, 30, message="the publisher")
         nginx, base = _nginx(os.path.dirname(meta["path"]), Path(tempfile.mkdtemp(prefix="bench-nginx-")))
+        running.enter_context(nginx)
         urls = {"gateway": f"{gw.api}/apps/{PUBLISHER_NODE}/bulk-data/rosbags/{meta['id']}",
                 "nginx": f"{base}{meta['id']}.mcap"}
         for name, url in urls.items():  # both serve the same bytes
@@ -206,13 +200,6 @@ def measure_download(p: dict, log_dir: str) -> dict[str, Any]:
         for _ in range(p["download_rounds"]):
             for name, url in urls.items():
                 rates[name].append(_curl(url))
-    finally:
-        if nginx is not None:
-            nginx.stop()
-        if gw is not None:
-            gw.stop()
-        pub.stop()
-        shutil.rmtree(state, ignore_errors=True)
     return {"rates": rates, "size": meta["size"]}
 
 

@@ -123,6 +123,14 @@ def test_each_package_imports_only_the_packages_below_it():
 SHARED = {"app": {"core", "sse", "openapi", "ui", "auth", "audit", "fleet"}, "rosworker": {"core", "ros"}}
 
 
+def import_base(node: ast.ImportFrom, package: str) -> str:
+    """The module a ``from ... import`` in ``package`` imports from, a relative one resolved."""
+    if node.level == 0:
+        return node.module or ""
+    parts = package.split(".")
+    return ".".join(parts[:len(parts) - node.level + 1] + ([node.module] if node.module else []))
+
+
 def imported_modules(path, package: str) -> set[str]:
     """The dotted names ``path`` (a module of ``package``) imports, relative imports resolved."""
     names = set()
@@ -130,11 +138,7 @@ def imported_modules(path, package: str) -> set[str]:
         if isinstance(node, ast.Import):
             names.update(alias.name for alias in node.names)
         elif isinstance(node, ast.ImportFrom):
-            if node.level == 0:
-                base = node.module or ""
-            else:
-                parts = package.split(".")
-                base = ".".join(parts[:len(parts) - node.level + 1] + ([node.module] if node.module else []))
+            base = import_base(node, package)
             names.add(base)
             names.update(f"{base}.{alias.name}" for alias in node.names)  # "from .. import faults"
     return names
@@ -197,11 +201,7 @@ def load_time_imports(path, module: str, known: set[str]) -> set[str]:
             if isinstance(node, ast.Import):
                 out.update(alias.name for alias in node.names if alias.name in known)
             elif isinstance(node, ast.ImportFrom):
-                if node.level == 0:
-                    base = node.module or ""
-                else:
-                    parts = package.split(".")
-                    base = ".".join(parts[:len(parts) - node.level + 1] + ([node.module] if node.module else []))
+                base = import_base(node, package)
                 for alias in node.names:
                     full = f"{base}.{alias.name}"
                     out.add(full if full in known else base)

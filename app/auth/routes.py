@@ -13,9 +13,9 @@
 
 With ``auth_enabled`` off every one answers 404 ``Authentication is not enabled`` (medkit), but
 ``whoami`` with the legacy ``api_token``.  Bodies are medkit's OAuth2 ones
-(``app/auth/__init__.py``'s ``oauth_response``).  Failed grants spend the address's failure
-budget, and an address without one is answered 429 before any secret is compared
-(``failures.py``).  These routes never need a token themselves.
+(``app/auth/__init__.py``'s ``oauth_response``, the handler of an ``OAuthError`` a route raises).
+Failed grants spend the address's failure budget, and an address without one is answered 429
+before any secret is compared (``failures.py``).  These routes never need a token themselves.
 """
 
 from __future__ import annotations
@@ -42,54 +42,45 @@ GRANT_FIELDS = ("grant_type", "client_id", "client_secret", "refresh_token", "sc
 
 @bp.post("/authorize")
 def authorize():
-    try:
-        body = _grant_body()
-        if body.get("grant_type") != "client_credentials":
-            raise OAuthError(400, "unsupported_grant_type", "Only 'client_credentials' grant type is supported")
-        client_id, secret = body.get("client_id"), body.get("client_secret")
-        if not client_id:
-            raise OAuthError(400, "invalid_request", "client_id is required")
-        if not secret:
-            raise OAuthError(400, "invalid_request", "client_secret is required")
-        return json_response(_granted(lambda auth: auth.tokens.authorize(client_id, secret)))
-    except OAuthError as exc:
-        return oauth_response(exc)
+    body = _grant_body()
+    if body.get("grant_type") != "client_credentials":
+        raise OAuthError(400, "unsupported_grant_type", "Only 'client_credentials' grant type is supported")
+    client_id, secret = body.get("client_id"), body.get("client_secret")
+    if not client_id:
+        raise OAuthError(400, "invalid_request", "client_id is required")
+    if not secret:
+        raise OAuthError(400, "invalid_request", "client_secret is required")
+    return json_response(_granted(lambda auth: auth.tokens.authorize(client_id, secret)))
 
 
 @bp.post("/token")
 def token():
-    try:
-        body = _grant_body()
-        if body.get("grant_type") != "refresh_token":
-            raise OAuthError(400, "unsupported_grant_type",
-                             "Only 'refresh_token' grant type is supported on this endpoint")
-        refresh = body.get("refresh_token")
-        if not refresh:
-            raise OAuthError(400, "invalid_request", "refresh_token is required")
-        return json_response(_granted(lambda auth: auth.tokens.refresh(refresh)))
-    except OAuthError as exc:
-        return oauth_response(exc)
+    body = _grant_body()
+    if body.get("grant_type") != "refresh_token":
+        raise OAuthError(400, "unsupported_grant_type",
+                         "Only 'refresh_token' grant type is supported on this endpoint")
+    refresh = body.get("refresh_token")
+    if not refresh:
+        raise OAuthError(400, "invalid_request", "refresh_token is required")
+    return json_response(_granted(lambda auth: auth.tokens.refresh(refresh)))
 
 
 @bp.post("/revoke")
 def revoke():
+    auth = _enabled()
     try:
-        auth = _enabled()
-        try:
-            body = orjson.loads(bodies.read_body())
-        except orjson.JSONDecodeError as exc:
-            raise OAuthError(400, "invalid_request", f"Invalid JSON: {_short(exc)}") from None
-        value = body.get("token") if isinstance(body, dict) else None
-        if not isinstance(value, str) or not value or len(value) > FIELD_MAX:
-            raise OAuthError(400, "invalid_request", "token is required")
-        try:
-            auth.tokens.revoke(value)
-        except StoreError:
-            raise OAuthError(500, "server_error", "The revocation could not be stored; it holds in one "
-                             "HTTP worker only, until it restarts") from None
-        return json_response({"status": "revoked"})
-    except OAuthError as exc:
-        return oauth_response(exc)
+        body = orjson.loads(bodies.read_body())
+    except orjson.JSONDecodeError as exc:
+        raise OAuthError(400, "invalid_request", f"Invalid JSON: {_short(exc)}") from None
+    value = body.get("token") if isinstance(body, dict) else None
+    if not isinstance(value, str) or not value or len(value) > FIELD_MAX:
+        raise OAuthError(400, "invalid_request", "token is required")
+    try:
+        auth.tokens.revoke(value)
+    except StoreError:
+        raise OAuthError(500, "server_error", "The revocation could not be stored; it holds in one "
+                         "HTTP worker only, until it restarts") from None
+    return json_response({"status": "revoked"})
 
 
 @bp.get("/x-medkit-whoami")

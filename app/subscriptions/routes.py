@@ -35,12 +35,18 @@ def _body() -> dict[str, Any]:
     return json_object('{"resource", "interval", "duration", "protocol"}')
 
 
+def _given(body: dict[str, Any], field: str, required: bool) -> Any:
+    """The body's ``field``; None where it is missing or null, which a create refuses."""
+    value = body.get(field)
+    if value is None and required:
+        raise bad(f"{field}: missing required field", field, None)
+    return value
+
+
 def _interval(body: dict[str, Any], required: bool) -> str | None:
-    if "interval" not in body or body["interval"] is None:
-        if required:
-            raise bad("interval: missing required field", "interval", None)
+    value = _given(body, "interval", required)
+    if value is None:
         return None
-    value = body["interval"]
     if not isinstance(value, str) or value not in INTERVALS:
         raise bad("Invalid interval. Must be 'fast', 'normal', or 'slow'.", "interval",
                    value if isinstance(value, (str, int, float)) else str(value)[:100])
@@ -48,11 +54,9 @@ def _interval(body: dict[str, Any], required: bool) -> str | None:
 
 
 def _duration(body: dict[str, Any], required: bool) -> int | None:
-    if "duration" not in body or body["duration"] is None:
-        if required:
-            raise bad("duration: missing required field", "duration", None)
+    value = _given(body, "duration", required)
+    if value is None:
         return None
-    value = body["duration"]
     if isinstance(value, float) and value.is_integer():
         value = int(value)
     if isinstance(value, bool) or not isinstance(value, int) or value <= 0:

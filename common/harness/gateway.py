@@ -188,6 +188,19 @@ class Gateway(Proc):
                 continue
         return []
 
+    def worker_of(self, local_port: int) -> int:
+        """The pid of the HTTP worker holding the client connection from ``local_port`` (once it shows)."""
+        def find():
+            for child in self._children(recursive=True):
+                try:
+                    for conn in child.net_connections(kind="tcp"):
+                        if conn.raddr and conn.raddr.port == local_port:
+                            return child.pid
+                except psutil.Error:
+                    continue
+            return None
+        return poll_until(find, 5, message="the HTTP worker of a connection")
+
     def stop(self, timeout: float = 15.0) -> int:
         code = super().stop(timeout)
         if self._own_dir:

@@ -21,27 +21,38 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import IO
 
 REPO = Path(__file__).resolve().parents[2]
 DOMAIN_LOCK_DIR = "/tmp/sovd-gateway-test-domains"
 _domain_locks: list = []  # held for the life of the process
 
 
-def claim_domain() -> int:
-    """A ROS_DOMAIN_ID (1–100) that no other test session or bench on this machine holds."""
-    os.makedirs(DOMAIN_LOCK_DIR, exist_ok=True)
-    candidates = list(range(1, 101))
+def _claim(lock_dir: str, numbers: range) -> tuple[int, IO[str]] | None:
+    """One of ``numbers``, tried in random order, whose lock file in ``lock_dir`` this process could ``flock``,
+    with that file (the lock lasts while it is open); None when every one is held."""
+    os.makedirs(lock_dir, exist_ok=True)
+    candidates = list(numbers)
     random.shuffle(candidates)
-    for domain in candidates:
-        fh = open(os.path.join(DOMAIN_LOCK_DIR, f"{domain}.lock"), "w")  # noqa: SIM115 - held
+    for number in candidates:
+        fh = open(os.path.join(lock_dir, f"{number}.lock"), "w")  # noqa: SIM115 - held
         try:
             fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
             fh.close()
             continue
-        _domain_locks.append(fh)
-        return domain
-    raise RuntimeError("no free ROS_DOMAIN_ID in 1..100")
+        return number, fh
+    return None
+
+
+def claim_domain() -> int:
+    """A ROS_DOMAIN_ID (1–100) that no other test session or bench on this machine holds."""
+    claimed = _claim(DOMAIN_LOCK_DIR, range(1, 101))
+    if claimed is None:
+        raise RuntimeError("no free ROS_DOMAIN_ID in 1..100")
+    domain, fh = claimed
+    _domain_locks.append(fh)
+    return domain
 
 
 def private_ros_domain() -> int:
@@ -98,20 +109,11 @@ def free_port() -> int:
     if _port_block and _port_block[3] != os.getpid():  # a forked child: a block of its own
         _port_block.clear()
     if not _port_block:
-        os.makedirs(PORT_LOCK_DIR, exist_ok=True)
-        starts = list(PORT_BLOCKS)
-        random.shuffle(starts)
-        for start in starts:
-            fh = open(os.path.join(PORT_LOCK_DIR, f"{start}.lock"), "w")  # noqa: SIM115 - held
-            try:
-                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError:
-                fh.close()
-                continue
-            _port_block.extend([fh, range(start, start + PORT_BLOCKS.step), 0, os.getpid()])
-            break
-        else:
+        claimed = _claim(PORT_LOCK_DIR, PORT_BLOCKS)
+        if claimed is None:
             raise RuntimeError(f"every block of test ports in {PORT_LOCK_DIR} is held")
+        start, fh = claimed
+        _port_block.extend([fh, range(start, start + PORT_BLOCKS.step), 0, os.getpid()])
     ports = _port_block[1]
     for _ in range(len(ports)):
         port = ports[_port_block[2] % len(ports)]
@@ -127,7 +129,7 @@ def free_port() -> int:
 
 class Proc:
     """A child process whose stdout lines are collected by a reader thread (``stdin``: a pipe to
-    write commands to, ``proc.stdin``, text).
+    write commands to, ``proc.stdin``, text).  ``with Proc(...) as p:`` stops it at the block's end.
 
     With ``log_path`` its output goes to that file instead (no reader thread;
     :meth:`wait_line` is then not available, :meth:`tail` reads the file).
@@ -186,6 +188,12 @@ class Proc:
                 continue
             if predicate(line):
                 return line
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
 
     def signal(self, sig: int) -> None:
         if self.proc.poll() is None:

@@ -152,7 +152,7 @@ def handlers(cfg: Any, role: Any, opener: Any, stats: Any) -> dict:
 
     from ipc.fleet import COLLECTIONS
 
-    from .aggregator import NotAnswered
+    from .gather import NotAnswered
 
     def collection(args: dict) -> str:
         name = arg(args, "collection", str)

@@ -7,58 +7,35 @@ for. The harness now checks that the listener is its own gateway's, and starts a
 
 from __future__ import annotations
 
-import http.server
-import threading
-
 import orjson
 import pytest
 
 from common.harness import gateway as harness
 from common.harness.procs import REPO, free_port
-
-
-class _Impostor(http.server.BaseHTTPRequestHandler):
-    """Answers every GET as a healthy gateway would, and counts them."""
-
-    hits = 0
-
-    def do_GET(self):  # noqa: N802 - http.server's name
-        type(self).hits += 1
-        body = orjson.dumps({"status": "healthy", "x-medkit-subscription-executor": {"worker_alive": True}})
-        self.send_response(200)
-        self.send_header("Content-Type", "application/json")
-        self.send_header("Content-Length", str(len(body)))
-        self.end_headers()
-        self.wfile.write(body)
-
-    def log_message(self, *args):
-        pass
+from tests.support.onepage import OnePage
 
 
 @pytest.fixture
 def impostor():
-    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), _Impostor)
-    _Impostor.hits = 0
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
-    yield server
-    server.shutdown()
-    server.server_close()
+    """Answers every GET as a healthy gateway would, and counts them."""
+    body = orjson.dumps({"status": "healthy", "x-medkit-subscription-executor": {"worker_alive": True}})
+    with OnePage(body, "application/json") as server:
+        yield server
 
 
 def test_a_port_taken_by_another_server_is_given_up_for_a_new_one(impostor, monkeypatch):
-    taken = impostor.server_address[1]
+    taken = impostor.port
     ports = iter([taken])
     monkeypatch.setattr(harness, "free_port", lambda: next(ports, None) or free_port())
     gw = harness.Gateway("--workers", "1")
     try:
         assert gw.port != taken
-        assert _Impostor.hits >= 1, "the impostor on the first port was never asked: the case did not happen"
-        hits = _Impostor.hits
+        assert impostor.hits >= 1, "the impostor on the first port was never asked: the case did not happen"
+        hits = impostor.hits
         r = gw.get("/health")
         assert r.status_code == 200
         assert r.json().keys() > {"status", "x-medkit-subscription-executor"}, r.text
-        assert _Impostor.hits == hits
+        assert impostor.hits == hits
     finally:
         gw.stop()
 

@@ -18,33 +18,52 @@ from ipc.errors import IpcError
 from tests.support.rosworker import RosWorker
 
 
-def test_a_request_lost_with_a_killed_worker_is_unavailable_at_once_not_a_timeout():
+@pytest.fixture
+def worker():
+    """A real ROS worker with the test-only commands (``debug_sleep``), stopped after the test."""
     worker = RosWorker(debug_commands=True)
-    client = RosWorkerClient.for_runtime_dir(worker.runtime_dir)
-    try:
-        outcome: list = []
+    yield worker
+    worker.stop()
 
-        def call():
-            started = time.monotonic()
-            try:
-                client.call("debug_sleep", {"seconds": 30}, timeout=20)
-            except IpcError as exc:
-                outcome.append((exc, time.monotonic() - started))
 
-        t = threading.Thread(target=call)
-        t.start()
-        time.sleep(0.5)
-        worker.signal(9)
-        t.join(25)
-        exc, waited = outcome[0]
-        assert exc.code == "unavailable" and ApiError.from_ipc(exc).status == 503
-        assert waited < 10  # not the 20 s deadline
-    finally:
+@pytest.fixture
+def client_of():
+    """``client_of(worker, pool_size=None)``: a client of that worker (closed after the test, before the worker
+    stops): the default pool, or one of ``pool_size`` channels."""
+    made: list[RosWorkerClient] = []
+
+    def make(worker: RosWorker, pool_size: int | None = None) -> RosWorkerClient:
+        made.append(RosWorkerClient.for_runtime_dir(worker.runtime_dir) if pool_size is None
+                    else RosWorkerClient(protocol.endpoint(worker.runtime_dir), pool_size=pool_size))
+        return made[-1]
+
+    yield make
+    for client in made:
         client.close()
-        worker.stop()
 
 
-def test_no_worker_is_unavailable_and_a_silent_worker_is_a_deadline(tmp_path):
+def test_a_request_lost_with_a_killed_worker_is_unavailable_at_once_not_a_timeout(worker, client_of):
+    client = client_of(worker)
+    outcome: list = []
+
+    def call():
+        started = time.monotonic()
+        try:
+            client.call("debug_sleep", {"seconds": 30}, timeout=20)
+        except IpcError as exc:
+            outcome.append((exc, time.monotonic() - started))
+
+    t = threading.Thread(target=call)
+    t.start()
+    time.sleep(0.5)
+    worker.signal(9)
+    t.join(25)
+    exc, waited = outcome[0]
+    assert exc.code == "unavailable" and ApiError.from_ipc(exc).status == 503
+    assert waited < 10  # not the 20 s deadline
+
+
+def test_no_worker_is_unavailable(tmp_path):
     client = RosWorkerClient.for_runtime_dir(str(tmp_path))
     try:
         with pytest.raises(IpcError) as info:
@@ -52,85 +71,68 @@ def test_no_worker_is_unavailable_and_a_silent_worker_is_a_deadline(tmp_path):
         assert info.value.code == "unavailable"
     finally:
         client.close()
-    worker = RosWorker(debug_commands=True)
-    client = RosWorkerClient.for_runtime_dir(worker.runtime_dir)
-    try:
-        threading.Thread(target=lambda: worker.client.call("debug_sleep", {"seconds": 3}, timeout=10),
-                         daemon=True).start()
-        time.sleep(0.3)
-        with pytest.raises(IpcError) as info:
-            client.call("pool", timeout=0.5)
-        assert info.value.code == "deadline-exceeded" and ApiError.from_ipc(info.value).status == 504
-        # The late reply to the timed-out call is dropped: the next call gets its own answer.
-        time.sleep(3)
-        assert client.call("pool", timeout=5) == {"topics": []}
-        assert client.call("ping")["pid"] == worker.pid
-    finally:
-        client.close()
-        worker.stop()
 
 
-def test_a_forked_child_makes_its_own_context():
-    worker = RosWorker()
-    client = RosWorkerClient.for_runtime_dir(worker.runtime_dir)
-    try:
-        parent_pid = client.call("ping")["pid"]
-        child = os.fork()
-        if child == 0:  # pragma: no cover - runs in the child
-            try:
-                ok = client.call("ping", timeout=5)["pid"] == parent_pid
-            except Exception:
-                ok = False
-            os._exit(0 if ok else 1)
-        _, status = os.waitpid(child, 0)
-        assert os.WEXITSTATUS(status) == 0
-        assert client.call("ping")["pid"] == parent_pid  # the parent's socket still works
-    finally:
-        client.close()
-        worker.stop()
+def test_a_silent_worker_is_a_deadline(worker, client_of):
+    client = client_of(worker)
+    threading.Thread(target=lambda: worker.client.call("debug_sleep", {"seconds": 3}, timeout=10),
+                     daemon=True).start()
+    time.sleep(0.3)
+    with pytest.raises(IpcError) as info:
+        client.call("pool", timeout=0.5)
+    assert info.value.code == "deadline-exceeded" and ApiError.from_ipc(info.value).status == 504
+    # The late reply to the timed-out call is dropped: the next call gets its own answer.
+    time.sleep(3)
+    assert client.call("pool", timeout=5) == {"topics": []}
+    assert client.call("ping")["pid"] == worker.pid
 
 
-def test_concurrent_callers_share_a_bounded_pool_of_channels():
-    worker = RosWorker(debug_commands=True)
-    client = RosWorkerClient(protocol.endpoint(worker.runtime_dir), pool_size=4)
-    try:
-        answers: list = []
-
-        def caller():
-            for _ in range(5):
-                answers.append(client.call("ping", timeout=10)["pid"])
-
-        callers = [threading.Thread(target=caller) for _ in range(24)]
-        for t in callers:
-            t.start()
-        for t in callers:
-            t.join(30)
-        assert not any(t.is_alive() for t in callers)
-        assert answers == [worker.pid] * 120
-        assert 1 <= client.channel_count <= 4
-    finally:
-        client.close()
-        worker.stop()
+def test_a_forked_child_makes_its_own_context(worker, client_of):
+    client = client_of(worker)
+    parent_pid = client.call("ping")["pid"]
+    child = os.fork()
+    if child == 0:  # pragma: no cover - runs in the child
+        try:
+            ok = client.call("ping", timeout=5)["pid"] == parent_pid
+        except Exception:
+            ok = False
+        os._exit(0 if ok else 1)
+    _, status = os.waitpid(child, 0)
+    assert os.WEXITSTATUS(status) == 0
+    assert client.call("ping")["pid"] == parent_pid  # the parent's socket still works
 
 
-def test_a_caller_beyond_the_pool_waits_for_a_channel_within_its_deadline():
-    worker = RosWorker(debug_commands=True)
-    client = RosWorkerClient(protocol.endpoint(worker.runtime_dir), pool_size=1)
-    try:
-        holder = threading.Thread(target=lambda: client.call("debug_sleep", {"seconds": 1.5}, timeout=10))
-        holder.start()
-        poll_until(lambda: worker.stats()["executor"]["current_task_age_ms"] > 0, 5,
-                   message="the only channel is busy")
-        # (ping and stats have a pool of their own, on the control socket: use a work command.)
-        with pytest.raises(IpcError) as info:
-            client.call("pool", timeout=0.3)
-        assert info.value.code == "deadline-exceeded" and "No free channel" in info.value.message
-        assert "topics" in client.call("pool", timeout=10)  # once the channel is free again
-        holder.join(10)
-        assert client.channel_count == 1
-    finally:
-        client.close()
-        worker.stop()
+def test_concurrent_callers_share_a_bounded_pool_of_channels(worker, client_of):
+    client = client_of(worker, pool_size=4)
+    answers: list = []
+
+    def caller():
+        for _ in range(5):
+            answers.append(client.call("ping", timeout=10)["pid"])
+
+    callers = [threading.Thread(target=caller) for _ in range(24)]
+    for t in callers:
+        t.start()
+    for t in callers:
+        t.join(30)
+    assert not any(t.is_alive() for t in callers)
+    assert answers == [worker.pid] * 120
+    assert 1 <= client.channel_count <= 4
+
+
+def test_a_caller_beyond_the_pool_waits_for_a_channel_within_its_deadline(worker, client_of):
+    client = client_of(worker, pool_size=1)
+    holder = threading.Thread(target=lambda: client.call("debug_sleep", {"seconds": 1.5}, timeout=10))
+    holder.start()
+    poll_until(lambda: worker.stats()["executor"]["current_task_age_ms"] > 0, 5,
+               message="the only channel is busy")
+    # (ping and stats have a pool of their own, on the control socket: use a work command.)
+    with pytest.raises(IpcError) as info:
+        client.call("pool", timeout=0.3)
+    assert info.value.code == "deadline-exceeded" and "No free channel" in info.value.message
+    assert "topics" in client.call("pool", timeout=10)  # once the channel is free again
+    holder.join(10)
+    assert client.channel_count == 1
 
 
 GREEN_CALLER = r"""

@@ -34,6 +34,7 @@ from ipc.client import RosWorkerClient
 from tests.reliability.load import (
     Answer,
     Client,
+    error_key,
     gateway_procs,
     memory,
     problem,
@@ -132,7 +133,7 @@ def test_schemathesis_against_the_openapi_document(target):
         body = response.content or b""
         wrong = problem(response.status_code, headers, body) if case.method != "HEAD" else None
         answers.append(Answer("fuzz", case.path, started, time.monotonic() - started,
-                              response.status_code, _key(response.status_code, body), wrong))
+                              response.status_code, error_key(response.status_code, body), wrong))
         if wrong:
             failures.append(f"{case.method} {case.formatted_path}: {wrong}")
         try:
@@ -148,16 +149,6 @@ def test_schemathesis_against_the_openapi_document(target):
            note=f"{len(answers)} generated cases from /api/v1/docs")
     assert not failures, f"{len(failures)} failures, e.g.:\n" + "\n".join(failures[:10])
     unharmed(gw, before, log_from)
-
-
-def _key(status: int, body: bytes) -> str:
-    if status == 200:
-        return "200"
-    try:
-        doc = json.loads(body)
-        return f"{status} {doc.get('vendor_code') or doc.get('error_code')}"
-    except (ValueError, AttributeError):
-        return str(status)
 
 
 # --------------------------------------------------------------------------------- PUT bodies
@@ -208,7 +199,7 @@ def test_fuzzed_publish_bodies_reach_the_ros_worker_and_never_hurt_it(target):
         headers = {k.lower(): v for k, v in r.headers.items()}
         wrong = problem(r.status_code, headers, r.content)
         answers.append(Answer("body", path, started, time.monotonic() - started, r.status_code,
-                              _key(r.status_code, r.content), wrong))
+                              error_key(r.status_code, r.content), wrong))
         if wrong or r.status_code not in (200, 400, 413):
             failures.append(f"{raw[:200]!r}: {r.status_code} {wrong or r.text[:200]}")
 
@@ -526,6 +517,21 @@ def health_answers(port: int, attempts: int = 3, timeout: float = 3.0) -> list[i
     return out
 
 
+def health_while_held(port: int, socks: list[socket.socket], attempts: int) -> list[int | str]:
+    """``/health`` answers while ``socks`` stay open (they are closed after)."""
+    try:
+        time.sleep(0.5)
+        return health_answers(port, attempts=attempts)
+    finally:
+        for s in socks:
+            s.close()
+
+
+def all_healthy(scenario: str, answers: list[int | str], note: str) -> None:
+    record(scenario, requests=len(answers), statuses=dict(collections.Counter(str(a) for a in answers)), note=note)
+    assert answers == [200] * len(answers), answers
+
+
 def test_slow_clients_do_not_starve_the_http_workers(gateways):
     """Clients that send half a head and stall hold no thread (app/http_worker.py).
 
@@ -533,33 +539,17 @@ def test_slow_clients_do_not_starve_the_http_workers(gateways):
     whole gateway used to have threads (2 x 8).
     """
     gw = gateways("--workers", "1", "--worker-connections", "64", "--log-level", "warning")
-    socks = slow_clients(gw.port, 24)
-    try:
-        time.sleep(0.5)
-        answers = health_answers(gw.port, attempts=1)
-    finally:
-        for s in socks:
-            s.close()
-    record("slow clients direct", requests=len(answers),
-           statuses=dict(collections.Counter(str(a) for a in answers)),
-           note="24 stalled connections vs 1 worker x 64 connections, no proxy")
-    assert answers == [200] * len(answers), answers
+    answers = health_while_held(gw.port, slow_clients(gw.port, 24), attempts=1)
+    all_healthy("slow clients direct", answers, "24 stalled connections vs 1 worker x 64 connections, no proxy")
 
 
 def test_idle_connections_do_not_starve_the_http_workers(gateways):
     """Connections that send nothing (port scans, browser preconnects) hold no thread."""
     gw = gateways("--log-level", "warning")  # the default 2 workers x 1000 connections
     idle = [socket.create_connection(("127.0.0.1", gw.port), timeout=5) for _ in range(200)]
-    try:
-        time.sleep(0.5)
-        answers = health_answers(gw.port, attempts=1)
-    finally:
-        for s in idle:
-            s.close()
-    record("idle connections direct", requests=len(answers),
-           statuses=dict(collections.Counter(str(a) for a in answers)),
-           note="200 connections that send nothing vs 2 workers x 1000 connections, no proxy")
-    assert answers == [200] * len(answers), answers
+    answers = health_while_held(gw.port, idle, attempts=1)
+    all_healthy("idle connections direct", answers,
+                "200 connections that send nothing vs 2 workers x 1000 connections, no proxy")
 
 
 def test_slow_clients_through_nginx_do_not_starve_the_gateway(gateways, tmp_path):
@@ -571,18 +561,11 @@ def test_slow_clients_through_nginx_do_not_starve_the_gateway(gateways, tmp_path
     try:
         socks = slow_clients(nginx.port, 40)
         socks += [socket.create_connection(("127.0.0.1", nginx.port), timeout=5) for _ in range(150)]
-        try:
-            time.sleep(0.5)
-            answers = health_answers(nginx.port, attempts=5)
-        finally:
-            for s in socks:
-                s.close()
+        answers = health_while_held(nginx.port, socks, attempts=5)
     finally:
         nginx.stop()
-    record("slow/idle clients via nginx", requests=len(answers),
-           statuses=dict(collections.Counter(str(a) for a in answers)),
-           note="40 stalled + 150 idle connections on nginx in front of 1 worker x 64 connections")
-    assert answers == [200] * len(answers), answers
+    all_healthy("slow/idle clients via nginx", answers,
+                "40 stalled + 150 idle connections on nginx in front of 1 worker x 64 connections")
 
 
 def test_pipelined_requests_all_get_answers(target):

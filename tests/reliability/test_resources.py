@@ -29,6 +29,7 @@ from tests.reliability.load import (
     scaled,
 )
 from tests.support.rospub import RosNode
+from tests.support.rosworker import call_once
 
 REQUESTS = scaled(5_000, 100_000)
 WARMUP = scaled(1_000, 5_000)
@@ -89,14 +90,6 @@ class CapWatch(threading.Thread):
         self.join(10)
 
 
-def stats_details(runtime_dir: str) -> dict:
-    client = RosWorkerClient.for_runtime_dir(runtime_dir)
-    try:
-        return client.call("stats", timeout=5)["details"]
-    finally:
-        client.close()
-
-
 def snapshot(pid: int) -> dict:
     procs = gateway_procs(pid)
     return {"rosworker": (procs.rosworker.pid, rss_mb(procs.rosworker), fds(procs.rosworker)),
@@ -124,13 +117,13 @@ def test_memory_descriptors_and_caps_hold_over_many_mixed_requests(gateways, nod
 
     Load(gw.port, fresh, CLIENTS, total=WARMUP, seed=100).run(120)
     before = snapshot(gw.pid)
-    churn_before = stats_details(gw.runtime_dir)
+    churn_before = call_once(gw.runtime_dir, "stats")["details"]
     watch = CapWatch(gw.runtime_dir)
     watch.start()
     with HealthProbe(gw.port, interval=0.2) as probe:
         answers = Load(gw.port, plan, CLIENTS, total=REQUESTS, seed=1).run(scaled(300, 3600))
     watch.stop()
-    churn = stats_details(gw.runtime_dir)
+    churn = call_once(gw.runtime_dir, "stats")["details"]
     poll_until(lambda: (h := gw.get("/health").json())["x-medkit-data-provider"]["concurrent_cold_waits"] == 0
                and h["x-medkit-subscription-executor"]["queue_depth"] == 0, 15, message="idle")
     after = snapshot(gw.pid)

@@ -39,6 +39,7 @@ from tests.reliability.load import (
     restarts_in,
 )
 from tests.support.rospub import RosNode
+from tests.support.rosworker import call_once
 
 BIN = Path(sys.executable).parent
 TOKEN = "reliability-token-0123456789abcdef"
@@ -61,14 +62,6 @@ def put(gw, host: str, text: str, headers: dict | None = None, path: str = CMD):
     body = json.dumps({"type": "std_msgs/msg/String", "data": {"data": text}}).encode()
     return Client(gw.port).request("PUT", f"/api/v1/components/{host}/data{path}", body,
                                    {"Content-Type": "application/json", **(headers or {})})
-
-
-def worker_ping(runtime_dir: str) -> int:
-    client = RosWorkerClient.for_runtime_dir(runtime_dir)
-    try:
-        return client.call("ping", timeout=5)["pid"]
-    finally:
-        client.close()
 
 
 def test_runtime_dir_socket_and_locks_are_private():
@@ -108,7 +101,7 @@ def test_second_gateway_and_stray_worker_refuse_while_the_first_serves(gateways,
     path = f"/api/v1/components/{host}/data/security/live"
     poll_until(lambda: gw.get(path[len("/api/v1"):]).json()["x-medkit"]["status"] == "data", 30,
                message="live data")
-    first_worker = worker_ping(gw.runtime_dir)
+    first_worker = call_once(gw.runtime_dir, "ping")["pid"]
     load = Load(gw.port, lambda rng: Req("read", "GET", path), 4).start()
     try:
         second = Proc([str(BIN / "sovd-gateway"), "--bind", f"127.0.0.1:{free_port()}",
@@ -121,7 +114,7 @@ def test_second_gateway_and_stray_worker_refuse_while_the_first_serves(gateways,
             second.stop()
             stray.stop()
         # The socket still belongs to the first gateway's ROS worker, which kept serving.
-        assert worker_ping(gw.runtime_dir) == first_worker == gateway_procs(gw.pid).rosworker.pid
+        assert call_once(gw.runtime_dir, "ping")["pid"] == first_worker == gateway_procs(gw.pid).rosworker.pid
         time.sleep(1.0)
     finally:
         load.stop()

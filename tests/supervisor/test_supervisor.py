@@ -24,6 +24,7 @@ from common.harness.procs import Proc, free_port, poll_until
 from ipc import protocol
 from ipc.client import RosWorkerClient
 from tests.support.rospub import publisher
+from tests.support.rosworker import call_once
 
 BIN = Path(sys.executable).parent
 TOPIC = "/sup_test/temperature"
@@ -128,22 +129,21 @@ def wait_for_data(gw: Gateway, comp: str, topic: str = TOPIC) -> dict:
     return poll_until(ok, 30, interval=0.2, message=f"status data on {topic}")
 
 
-def all_gone(pids: list[int]) -> bool:
-    for pid in pids:
-        try:
-            if psutil.Process(pid).status() != psutil.STATUS_ZOMBIE:
-                return False
-        except psutil.NoSuchProcess:
-            continue
-    return True
+def descendants(gw: Proc) -> list[int]:
+    return [p.pid for p in psutil.Process(gw.pid).children(recursive=True)]
 
 
-def pooled(runtime_dir: str) -> list[str]:
-    client = RosWorkerClient.for_runtime_dir(runtime_dir)
-    try:
-        return client.call("pool", timeout=2)["topics"]
-    finally:
-        client.close()
+def wait_all_gone(pids: list[int], timeout: float, message: str) -> None:
+    """Until none of ``pids`` runs (a zombie counts as gone)."""
+    def all_gone() -> bool:
+        for pid in pids:
+            try:
+                if psutil.Process(pid).status() != psutil.STATUS_ZOMBIE:
+                    return False
+            except psutil.NoSuchProcess:
+                continue
+        return True
+    poll_until(all_gone, timeout, message=message)
 
 
 def pings_after(notify: NotifyListener, marker: str) -> int:
@@ -151,6 +151,18 @@ def pings_after(notify: NotifyListener, marker: str) -> int:
     fields = notify.fields()
     start = next((i for i, f in enumerate(fields) if marker in f), None)
     return 0 if start is None else fields[start:].count("WATCHDOG=1")
+
+
+def replaced(notify: NotifyListener, trouble: str, old: int) -> tuple[list[str], int, int, int]:
+    """Once WATCHDOG=1 comes again after the ROS worker ``old`` was replaced: the notify fields, and where the
+    first ``trouble`` field, the kill of ``old`` and the worker ready again stand in them (in that order)."""
+    poll_until(lambda: pings_after(notify, "ready again") >= 2, 30, message="WATCHDOG=1 again after the restart")
+    fields = notify.fields()
+    began = next(i for i, f in enumerate(fields) if trouble in f)
+    killed = next(i for i, f in enumerate(fields) if f"killing ROS worker pid {old}" in f)
+    back = next(i for i, f in enumerate(fields) if i > killed and "ready again" in f)
+    assert began < killed < back
+    return fields, began, killed, back
 
 
 # ---- start, read, stop -------------------------------------------------------------------------
@@ -170,22 +182,19 @@ def test_reads_a_live_value_end_to_end(temperature_pub):
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_signal_stops_everything_and_leaves_nothing(sig):
-    gw = Gateway()
-    try:
+    with Gateway() as gw:
         worker = worker_pid(gw)
-        children = [p.pid for p in psutil.Process(gw.pid).children(recursive=True)]
+        children = descendants(gw)
         assert worker in children
         assert len(children) >= 3, "ROS worker, gunicorn master and at least one HTTP worker"
         gw.signal(sig)
         code = gw.proc.wait(timeout=10)  # the contract: everything stops within 10 s
         assert code == 0, "\n".join(gw.output[-30:])
-        poll_until(lambda: all_gone(children), 5, message="every child gone")
+        wait_all_gone(children, 5, "every child gone")
         text = "\n".join(gw.output)
         assert f"{signal.Signals(sig).name} received: stopping" in text
         # Ordered: gunicorn is stopped before the ROS worker.
         assert text.index("stopping gunicorn") < text.index("stopping ROS worker")
-    finally:
-        gw.stop()
 
 
 def test_in_flight_request_finishes_on_sigterm():
@@ -338,14 +347,15 @@ def test_hot_topics_are_warm_again_after_a_crash(temperature_pub):
     try:
         comp = host_id(gw)
         wait_for_data(gw, comp)
-        assert TOPIC in pooled(gw.runtime_dir)
+        assert TOPIC in call_once(gw.runtime_dir, "pool", timeout=2)["topics"]
         state = os.path.join(gw.runtime_dir, "restart-state.json")
         poll_until(lambda: TOPIC in Path(state).read_text(), 15, message="pool list saved")
         old = worker_pid(gw)
         os.kill(old, signal.SIGKILL)
         poll_until(lambda: alive_again(gw, old), 30, interval=0.1, message="ROS worker back")
         # Pooled again by the new worker itself, before any client read it.
-        poll_until(lambda: TOPIC in pooled(gw.runtime_dir), 20, message="topic re-warmed")
+        poll_until(lambda: TOPIC in call_once(gw.runtime_dir, "pool", timeout=2)["topics"], 20,
+                   message="topic re-warmed")
     finally:
         assert gw.stop() == 0
 
@@ -363,13 +373,7 @@ def test_hung_worker_stops_the_watchdog_and_is_replaced(notify):
                    20, message="not-answering status")
         poll_until(lambda: alive_again(gw, old), 40, interval=0.1, message="hung worker replaced")
         assert not psutil.pid_exists(old) or psutil.Process(old).status() == psutil.STATUS_ZOMBIE
-        poll_until(lambda: pings_after(notify, "ready again") >= 2, 30,
-                   message="WATCHDOG=1 again after the restart")
-        fields = notify.fields()
-        silent_from = next(i for i, f in enumerate(fields) if "not answering" in f)
-        killed = next(i for i, f in enumerate(fields) if f"killing ROS worker pid {old}" in f)
-        back = next(i for i, f in enumerate(fields) if i > killed and "ready again" in f)
-        assert silent_from < killed < back
+        fields, silent_from, killed, back = replaced(notify, "not answering", old)
         assert "WATCHDOG=1" not in fields[silent_from:back], "WATCHDOG=1 sent while the worker hung"
         assert any("restarting ROS worker (attempt 1/5)" in f for f in fields[killed:back])
     finally:
@@ -399,13 +403,7 @@ def test_degraded_worker_stops_the_watchdog_and_is_replaced(notify):
         poll_until(lambda: notify.has(lambda f: f.startswith(f"STATUS=ROS worker pid {old} degraded")),
                    20, message="degraded status")
         poll_until(lambda: alive_again(gw, old), 40, interval=0.1, message="stuck worker replaced")
-        poll_until(lambda: pings_after(notify, "ready again") >= 2, 30,
-                   message="WATCHDOG=1 again after the restart")
-        fields = notify.fields()
-        degraded = next(i for i, f in enumerate(fields) if "degraded" in f)
-        killed = next(i for i, f in enumerate(fields) if f"killing ROS worker pid {old}" in f)
-        back = next(i for i, f in enumerate(fields) if i > killed and "ready again" in f)
-        assert degraded < killed < back
+        fields, degraded, _, back = replaced(notify, "degraded", old)
         assert "WATCHDOG=1" not in fields[degraded:back], "WATCHDOG=1 sent while degraded"
     finally:
         client.close()
@@ -413,8 +411,7 @@ def test_degraded_worker_stops_the_watchdog_and_is_replaced(notify):
 
 
 def test_restart_limit_ends_the_service():
-    gw = Gateway("--restart-limit", "2", "--restart-window", "300")
-    try:
+    with Gateway("--restart-limit", "2", "--restart-window", "300") as gw:
         for attempt in (1, 2):
             old = worker_pid(gw)
             os.kill(old, signal.SIGKILL)
@@ -426,8 +423,6 @@ def test_restart_limit_ends_the_service():
         text = "\n".join(gw.output)
         assert "restart_limit 2): giving up" in text
         assert text.count("restarting ROS worker (attempt") == 2
-    finally:
-        gw.stop()
 
 
 # A process that takes the ROS worker's lock as soon as it is free and holds it until SIGTERM:
@@ -583,33 +578,26 @@ def test_pool_list_survives_in_the_runtime_dir_only(temperature_pub):
 
 # ---- the supervisor itself goes away, or gunicorn does --------------------------------------------
 def test_sigterm_while_starting_stops_cleanly(tmp_path):
-    gw = _gateway_proc(str(tmp_path))
-    try:
+    with _gateway_proc(str(tmp_path)) as gw:
         poll_until(lambda: rosworker_of(gw), 30, interval=0.01, message="ROS worker started")
-        children = [p.pid for p in psutil.Process(gw.pid).children(recursive=True)]
+        children = descendants(gw)
         gw.signal(signal.SIGTERM)
         assert gw.proc.wait(timeout=10) == 0
-        poll_until(lambda: all_gone(children), 5, message="children gone")
-    finally:
-        gw.stop()
+        wait_all_gone(children, 5, "children gone")
 
 
 def test_children_die_with_a_killed_supervisor():
     """SIGKILL of the supervisor (no chance to clean up): the parent-death signal ends the children."""
-    gw = Gateway()
-    try:
-        children = [p.pid for p in psutil.Process(gw.pid).children(recursive=True)]
+    with Gateway() as gw:
+        children = descendants(gw)
         assert len(children) >= 3
         os.kill(gw.pid, signal.SIGKILL)
         gw.proc.wait(timeout=10)
-        poll_until(lambda: all_gone(children), 20, message="children gone after the supervisor died")
-    finally:
-        gw.stop()
+        wait_all_gone(children, 20, "children gone after the supervisor died")
 
 
 def test_gunicorn_dying_ends_the_service():
-    gw = Gateway()
-    try:
+    with Gateway() as gw:
         worker = worker_pid(gw)
         master = next(c for c in psutil.Process(gw.pid).children() if c.pid != worker)
         http_workers = [c.pid for c in master.children()]
@@ -617,6 +605,4 @@ def test_gunicorn_dying_ends_the_service():
         code = poll_until(lambda: gw.proc.poll(), 20, message="supervisor exits")
         assert code == 1
         assert f"gunicorn pid {master.pid} was killed by SIGKILL unexpectedly; stopping" in "\n".join(gw.output)
-        poll_until(lambda: all_gone([worker, *http_workers]), 10, message="everything gone")
-    finally:
-        gw.stop()
+        wait_all_gone([worker, *http_workers], 10, "everything gone")

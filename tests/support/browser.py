@@ -61,6 +61,18 @@ def launch() -> Iterator:
             browser.close()
 
 
+@contextlib.contextmanager
+def headless_browser(expect_timeout_ms: int) -> Iterator:
+    """:func:`launch` once chromium is there (:func:`require_chromium`), with playwright's ``expect`` waiting up to
+    ``expect_timeout_ms`` (a loaded 2-core machine is slow; no timing is asserted)."""
+    require_chromium()
+    from playwright.sync_api import expect
+
+    expect.set_options(timeout=expect_timeout_ms)
+    with launch() as browser:
+        yield browser
+
+
 class Watch:
     """The problems of one page: console errors, page errors, failed requests, HTTP errors."""
 

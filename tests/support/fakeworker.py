@@ -338,6 +338,16 @@ class SimpleTask:
         self.reply = reply
 
 
+def error_of(r, status: int, error_code: str, vendor_code: str | None = None) -> dict:
+    """The contract's error body of a test client's answer ``r``, checked: its status, its codes, and a message."""
+    assert r.status_code == status, r.data
+    doc = r.get_json()
+    assert doc["error_code"] == error_code, doc
+    assert doc.get("vendor_code") == vendor_code, doc
+    assert isinstance(doc["message"], str) and doc["message"]
+    return doc
+
+
 def make_app(worker: FakeWorker | None = None, runtime_dir: str | None = None, **overrides: Any):
     """The Flask app (``app.wsgi.create_app``) wired to ``worker``'s socket.
 

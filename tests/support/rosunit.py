@@ -24,6 +24,9 @@ from typing import Any
 
 import zmq
 
+from rosworker.core.task import Timer
+from rosworker.subscriptions.registry import Subscription
+
 CALL_TIMEOUT = 10.0  # seconds a call on the ROS thread may take before the test fails (a hang)
 
 
@@ -130,3 +133,43 @@ class FakeNode:
 
     def count_subscribers(self, topic: str) -> int:
         return sum(t == topic for t, _ in self._all("sub"))
+
+
+class TimerExecutor:
+    """The executor as a feed sees it: ``call_later`` keeps its timers (not run), ``guarded`` runs at once,
+    and the test runs the feed's one armed timer with :meth:`fire`."""
+
+    def __init__(self):
+        self.timers: list[Timer] = []
+
+    def call_later(self, delay, fn):
+        timer = Timer(delay, fn)
+        self.timers.append(timer)
+        return timer
+
+    def guarded(self, _where, fn, *args):
+        return fn(*args)
+
+    def fire(self):
+        """Run the one live timer (a feed keeps exactly one armed)."""
+        live = [t for t in self.timers if not t.cancelled]
+        self.timers = []
+        assert len(live) == 1, live
+        live[0].fn()
+
+
+class FakeEvents:
+    """The core's events channel: what the feed publishes."""
+
+    def __init__(self):
+        self.frames: list[tuple[bytes, dict, bytes]] = []
+
+    def publish(self, key, meta, data=b"{}"):
+        self.frames.append((key, meta, data))
+
+
+def feed_subscription(kind: str, target: dict, interval: str = "fast"):
+    """A cyclic subscription of ``kind`` (a sampler's name) on ``target``, as the registry hands it to a feed."""
+    return Subscription(id="sub_0123456789abcdef", collection="apps", entity_id="tuner", resource="/r",
+                        topic="", bytes="array", interval=interval, duration=60, created_at_ns=0, kind=kind,
+                        target=target)

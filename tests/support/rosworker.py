@@ -6,6 +6,7 @@ import os
 import shutil
 import sys
 import tempfile
+import threading
 from pathlib import Path
 
 from common.harness.procs import Proc, poll_until
@@ -14,6 +15,15 @@ from ipc.errors import IpcError
 
 BIN = Path(sys.executable).parent
 SHADOW = Path(__file__).parent / "shadow"
+
+
+def call_once(runtime_dir: str, cmd: str, args: dict | None = None, timeout: float = 5.0) -> dict:
+    """One call to the ROS worker of ``runtime_dir`` (a gateway's too) on a client of its own, closed after."""
+    client = RosWorkerClient.for_runtime_dir(runtime_dir)
+    try:
+        return client.call(cmd, args, timeout=timeout)
+    finally:
+        client.close()
 
 
 class RosWorker(Proc):
@@ -61,6 +71,24 @@ class RosWorker(Proc):
         """Sample until the answer has data (the first read after discovery may be cold)."""
         return poll_until(lambda: (lambda r: r if r["status"] == "data" else None)(self.sample(topic)),
                           timeout, interval=0.1, message=f"data on {topic}")
+
+    def cold_waiter(self, topic: str, timeout_ms: int = 20000) -> tuple[threading.Thread, list[dict]]:
+        """Once ``topic`` (published, but quiet) is in the graph: a sample of it that waits for a message, on a
+        thread of ours, counted as the worker's one cold waiter.  The thread, and the list its answer goes to."""
+        poll_until(lambda: any(t["name"] == topic for t in self.call("graph")["topics"]), 10,
+                   message=f"the publisher of {topic} discovered")
+        answers: list[dict] = []
+        waiter = threading.Thread(target=lambda: answers.append(self.sample(topic, timeout_ms=timeout_ms)))
+        waiter.start()
+        poll_until(lambda: self.stats()["data_provider"]["concurrent_cold_waits"] == 1, 5, message="cold waiter")
+        return waiter, answers
+
+    def busy(self, seconds: float) -> threading.Thread:
+        """The ROS thread kept busy for ``seconds`` (``debug_sleep``: started with ``debug_commands``) by a call on
+        a thread of ours, started."""
+        call = threading.Thread(target=lambda: self.call("debug_sleep", {"seconds": seconds}, timeout=10))
+        call.start()
+        return call
 
     def stop(self, timeout: float = 10.0) -> int:
         code = super().stop(timeout)

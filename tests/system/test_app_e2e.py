@@ -201,27 +201,21 @@ def test_every_link_of_every_entity_answers(gw):
     assert followed > 30
 
 
+def not_found(message: str, **parameters: str) -> dict:
+    return {"error_code": "entity-not-found", "message": message, "parameters": parameters}
+
+
 @pytest.mark.parametrize("path, status, body", [
-    ("/components/nope/hosts", 404,
-     {"error_code": "entity-not-found", "message": "Component not found", "parameters": {"component_id": "nope"}}),
-    ("/components/temp_sensor/subcomponents", 404,
-     {"error_code": "entity-not-found", "message": "Component not found",
-      "parameters": {"component_id": "temp_sensor"}}),
-    ("/functions/nope/hosts", 404,
-     {"error_code": "entity-not-found", "message": "Function not found", "parameters": {"function_id": "nope"}}),
-    ("/apps/nope/belongs-to", 404,
-     {"error_code": "entity-not-found", "message": "Entity not found", "parameters": {"entity_id": "nope"}}),
+    ("/components/nope/hosts", 404, not_found("Component not found", component_id="nope")),
+    ("/components/temp_sensor/subcomponents", 404, not_found("Component not found", component_id="temp_sensor")),
+    ("/functions/nope/hosts", 404, not_found("Function not found", function_id="nope")),
+    ("/apps/nope/belongs-to", 404, not_found("Entity not found", entity_id="nope")),
     ("/apps/powertrain/depends-on", 400,
      {"error_code": "invalid-parameter", "message": "Invalid entity type for route: expected App, got Function",
       "parameters": {"entity_id": "powertrain", "expected_type": "App", "actual_type": "Function"}}),
-    ("/areas/nope", 404,
-     {"error_code": "entity-not-found", "message": "Entity not found", "parameters": {"entity_id": "nope"}}),
-    ("/areas/nope/components", 404,
-     {"error_code": "entity-not-found", "message": "Area not found", "parameters": {"area_id": "nope"}}),
-    ("/areas/nope/contains", 404,
-     {"error_code": "entity-not-found", "message": "Area not found", "parameters": {"area_id": "nope"}}),
-    ("/areas/nope/subareas", 404,
-     {"error_code": "entity-not-found", "message": "Area not found", "parameters": {"area_id": "nope"}}),
+    ("/areas/nope", 404, not_found("Entity not found", entity_id="nope")),
+    *[(f"/areas/nope/{relation}", 404, not_found("Area not found", area_id="nope"))
+      for relation in ("components", "contains", "subareas")],
     ("/areas/area;drop/components", 400,
      {"error_code": "invalid-parameter", "message": "Invalid area ID",
       "parameters": {"area_id": "area;drop", "details": "Entity ID contains invalid character: ';'. "

@@ -18,14 +18,13 @@ subscriber's echo, never sleeps.
 from __future__ import annotations
 
 import json
-import threading
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import pytest
 
 from common.harness.gateway import Gateway
 from common.harness.procs import poll_until
 from tests.support.browser import launch, require_chromium
+from tests.support.onepage import OnePage
 from tests.support.rospub import RosNode, unique_topic
 
 PAGE = b"""<!doctype html>
@@ -56,28 +55,11 @@ async function put(url, body, mode) {
 </script></body></html>"""
 
 
-class _Site(BaseHTTPRequestHandler):
-    def do_GET(self):  # noqa: N802 (http.server's naming)
-        self.send_response(200)
-        self.send_header("Content-Type", "text/html; charset=utf-8")
-        self.send_header("Content-Length", str(len(PAGE)))
-        self.end_headers()
-        self.wfile.write(PAGE)
-
-    def log_message(self, *args):
-        pass
-
-
 @pytest.fixture(scope="module")
 def site():
     """The other web site: http://127.0.0.1:<another port>/ (an origin of its own)."""
-    server = ThreadingHTTPServer(("127.0.0.1", 0), _Site)
-    thread = threading.Thread(target=server.serve_forever, name="other-site", daemon=True)
-    thread.start()
-    yield f"http://127.0.0.1:{server.server_address[1]}/"
-    server.shutdown()
-    server.server_close()
-    thread.join(10)
+    with OnePage(PAGE, "text/html; charset=utf-8") as server:
+        yield server.url
 
 
 @pytest.fixture(scope="module")

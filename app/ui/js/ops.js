@@ -15,6 +15,7 @@
 
 import { describe, request } from "./api.js";
 import { fill, h } from "./dom.js";
+import { CollectionPanel } from "./panel.js";
 
 const POLL_MS = 500;
 const MAX_PAST = 8;
@@ -48,37 +49,19 @@ function oneLine(value) {
   return text && text.length > FEEDBACK_CHARS ? `${text.slice(0, FEEDBACK_CHARS)}…` : text || "";
 }
 
-export class OperationsView {
-  constructor(container, { collection, entityId }, { capabilities }) {
-    this.container = container;
-    this.base = `${collection}/${entityId}/operations`;
-    this.entityId = entityId;
-    this.allowed = Boolean(capabilities.operation_execution);
+export class OperationsView extends CollectionPanel {
+  constructor(container, entity, { capabilities }) {
+    super(container, entity, "operations", capabilities.operation_execution);
     this.timers = new Set();
-    this.failed = false;
-    this.destroyed = false;
   }
 
-  async start() {
-    fill(this.container, h("h2", {}, `Operations of ${this.entityId}`), h("p", { class: "muted" }, "loading…"));
-    let items;
-    try {
-      items = (await request("GET", this.base)).items;
-    } catch (error) {
-      this.failed = true;
-      fill(this.container, h("h2", {}, `Operations of ${this.entityId}`),
-        h("p", { class: "form-status", role: "alert" }, `The operations could not be loaded: ${describe(error)}`));
-      return;
-    }
-    if (this.destroyed) return;
-    fill(this.container, h("h2", {}, `Operations of ${this.entityId}`),
-      items.length ? null : h("p", { class: "muted" }, "This app offers no services or actions."),
-      this.allowed ? null : h("p", { class: "muted" }, "Read-only: the gateway does not allow operations "
-        + "(--allow-operations)."),
-      items.map((item) => this._operation(item)));
+  texts() {
+    return { heading: `Operations of ${this.entityId}`, noun: "operations",
+             empty: "This app offers no services or actions.",
+             readOnly: "Read-only: the gateway does not allow operations (--allow-operations)." };
   }
 
-  _operation(item) {
+  render(item) {
     const ext = item["x-medkit"] || {};
     const ros2 = ext.ros2 || {};
     const action = ros2.kind === "action";
@@ -215,7 +198,7 @@ export class OperationsView {
   }
 
   destroy() {
-    this.destroyed = true;
+    super.destroy();
     for (const timer of this.timers) clearTimeout(timer);
     this.timers.clear();
   }

@@ -10,7 +10,8 @@
 // field, and the value shown stays the node's.
 
 import { describe, request } from "./api.js";
-import { fill, h } from "./dom.js";
+import { h } from "./dom.js";
+import { CollectionPanel } from "./panel.js";
 
 /** "0.5 – 50" (and the step when there is one), or "" when the parameter declares no range. */
 function rangeText(parameter) {
@@ -24,42 +25,26 @@ function valueText(value) {
   return typeof value === "string" ? value : JSON.stringify(value);
 }
 
-export class ParametersView {
-  constructor(container, { collection, entityId }, { capabilities }) {
-    this.container = container;
-    this.base = `${collection}/${entityId}/configurations`;
-    this.entityId = entityId;
-    this.allowed = Boolean(capabilities.configuration_writes);
-    this.failed = false;
-    this.destroyed = false;
+export class ParametersView extends CollectionPanel {
+  constructor(container, entity, { capabilities }) {
+    super(container, entity, "configurations", capabilities.configuration_writes);
   }
 
-  async start() {
-    const title = h("h2", {}, `Parameters of ${this.entityId}`);
-    fill(this.container, title, h("p", { class: "muted" }, "loading…"));
-    let items;
-    try {
-      items = (await request("GET", this.base)).items;
-      // the descriptors (range, description, read-only) are in each parameter's own answer: asked one at a
-      // time, so the panel never adds a burst of requests to the tree's own loading
-      const detailed = [];
-      for (const item of items) detailed.push(await request("GET", `${this.base}/${encodeURIComponent(item.id)}`));
-      items = detailed;
-    } catch (error) {
-      this.failed = true;
-      fill(this.container, title,
-        h("p", { class: "form-status", role: "alert" }, `The parameters could not be loaded: ${describe(error)}`));
-      return;
-    }
-    if (this.destroyed) return;
-    fill(this.container, title,
-      items.length ? null : h("p", { class: "muted" }, "This app's node declares no parameters."),
-      this.allowed ? null : h("p", { class: "muted" }, "Read-only: the gateway does not allow configuration "
-        + "changes (--allow-configurations)."),
-      items.map((item) => this._parameter(item)));
+  texts() {
+    return { heading: `Parameters of ${this.entityId}`, noun: "parameters",
+             empty: "This app's node declares no parameters.",
+             readOnly: "Read-only: the gateway does not allow configuration changes (--allow-configurations)." };
   }
 
-  _parameter(item) {
+  /** Each parameter's own answer: the descriptors (range, description, read-only) are only there.  Asked one at a
+   * time, so the panel never adds a burst of requests to the tree's own loading. */
+  async load() {
+    const detailed = [];
+    for (const item of await super.load()) detailed.push(await request("GET", `${this.base}/${encodeURIComponent(item.id)}`));
+    return detailed;
+  }
+
+  render(item) {
     const parameter = (item["x-medkit"] || {}).parameter || {};
     const range = rangeText(parameter);
     const value = h("code", { class: "param-value" }, valueText(item.data));
@@ -104,9 +89,5 @@ export class ParametersView {
       }
     });
     return form;
-  }
-
-  destroy() {
-    this.destroyed = true;
   }
 }

@@ -8,7 +8,7 @@ import orjson
 import pytest
 
 from ipc.errors import IpcError
-from tests.support.fakeworker import data_sample, make_app, metadata_sample, node
+from tests.support.fakeworker import data_sample, error_of, make_app, metadata_sample, node
 
 TEMP = "/powertrain/engine/temperature"
 TEMP_TYPE = "sensor_msgs/msg/Temperature"
@@ -233,21 +233,15 @@ def test_worker_gone_after_discovery_gives_503(fw):
     assert client.get("/api/v1/apps").status_code == 200  # graph cached
     fw.stop()
     r = client.get("/api/v1/apps/temp_sensor/data/powertrain/engine/temperature")
-    assert r.status_code == 503
+    error_of(r, 503, "vendor-error", "x-medkit-ros-worker-unavailable")
     assert r.headers["Retry-After"] == "2"
-    body = r.get_json()
-    assert body["error_code"] == "vendor-error"
-    assert body["vendor_code"] == "x-medkit-ros-worker-unavailable"
 
 
 def test_cold_wait_cap_exceeded(client, fw):
     fw.errors["sample"] = IpcError("cold-wait-cap-exceeded", "cap", {"topic": TEMP, "cold_wait_cap": 4})
     r = client.get("/api/v1/apps/temp_sensor/data/powertrain%2Fengine%2Ftemperature")
-    assert r.status_code == 503
+    body = error_of(r, 503, "vendor-error", "x-medkit-cold-wait-cap-exceeded")
     assert r.headers["Retry-After"] == "1"
-    body = r.get_json()
-    assert body["error_code"] == "vendor-error"
-    assert body["vendor_code"] == "x-medkit-cold-wait-cap-exceeded"
     assert "retry" in body["message"].lower() and "backoff" in body["message"]
     assert body["parameters"] == {"topic": TEMP, "cold_wait_cap": 4, "entity_id": "temp_sensor",
                                   "topic_name": "powertrain/engine/temperature"}

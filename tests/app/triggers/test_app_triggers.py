@@ -12,6 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ipc.errors import IpcError
+from tests.support.fakeworker import error_of
 
 BASE = "/api/v1/apps/temp_sensor/triggers"
 RESOURCE = "/api/v1/apps/temp_sensor/data/powertrain/engine/temperature"
@@ -23,15 +24,6 @@ def body(**changes):
     out = {"resource": RESOURCE, "trigger_condition": {"condition_type": "OnChange"}}
     out.update(changes)
     return {k: v for k, v in out.items() if v is not ...}
-
-
-def error_of(r, status, error_code, vendor_code=None):
-    assert r.status_code == status, r.data
-    doc = r.get_json()
-    assert doc["error_code"] == error_code, doc
-    assert doc.get("vendor_code") == vendor_code, doc
-    assert isinstance(doc["message"], str) and doc["message"]
-    return doc
 
 
 def test_create_answers_201_with_medkits_fields(client, fw):

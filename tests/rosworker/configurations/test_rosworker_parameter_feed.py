@@ -15,44 +15,7 @@ from rcl_interfaces.msg import Parameter, ParameterEvent, ParameterType, Paramet
 
 from ipc.errors import IpcError
 from rosworker.configurations.feed import ParameterFeed
-from rosworker.core.task import Timer
-from rosworker.subscriptions.registry import Subscription
-
-
-class Executor:
-    def __init__(self):
-        self.timers: list[Timer] = []
-
-    def call_later(self, delay, fn):
-        timer = Timer(delay, fn)
-        self.timers.append(timer)
-        return timer
-
-    def guarded(self, _where, fn, *args):
-        return fn(*args)
-
-    def fire(self):
-        """Run the one live timer (a feed keeps exactly one armed)."""
-        live = [t for t in self.timers if not t.cancelled]
-        self.timers = []
-        assert len(live) == 1, live
-        live[0].fn()
-
-
-class Events:
-    """The core's events channel: what the feed publishes."""
-
-    def __init__(self):
-        self.frames: list[tuple[bytes, dict, bytes]] = []
-
-    def publish(self, key, meta, data=b"{}"):
-        self.frames.append((key, meta, data))
-
-
-def sub(kind, target, interval="fast"):
-    return Subscription(id="sub_0123456789abcdef", collection="apps", entity_id="tuner", resource="/r",
-                        topic="", bytes="array", interval=interval, duration=60, created_at_ns=0, kind=kind,
-                        target=target)
+from tests.support.rosunit import FakeEvents, TimerExecutor, feed_subscription
 
 
 class Params:
@@ -86,13 +49,13 @@ def double(x):
 
 @pytest.fixture
 def world():
-    executor, events, params, defaults = Executor(), Events(), Params(), Defaults()
+    executor, events, params, defaults = TimerExecutor(), FakeEvents(), Params(), Defaults()
     feed = ParameterFeed(SimpleNamespace(executor=executor, events=events), params, defaults, Commands())
     return SimpleNamespace(executor=executor, events=events, params=params, defaults=defaults, feed=feed)
 
 
 def test_a_parameter_event_that_overtakes_the_read_wins(world):
-    s = sub("parameter", {"node": "/t", "name": "ratio", "id": "ratio"})
+    s = feed_subscription("parameter", {"node": "/t", "name": "ratio", "id": "ratio"})
     world.feed.watch(s, lambda: None)
     world.executor.fire()
     assert world.events.frames == []  # no value yet: no frame
@@ -109,7 +72,7 @@ def test_a_parameter_event_that_overtakes_the_read_wins(world):
 
 
 def test_a_deleted_parameter_gives_error_frames_until_it_is_back(world):
-    s = sub("parameter", {"node": "/t", "name": "ratio", "id": "ratio"})
+    s = feed_subscription("parameter", {"node": "/t", "name": "ratio", "id": "ratio"})
     world.feed.watch(s, lambda: None)
     world.params.reads[0]({"name": "ratio", "value": 0.5, "type": "double"})
     for listener in world.defaults.listeners:
@@ -124,7 +87,7 @@ def test_a_deleted_parameter_gives_error_frames_until_it_is_back(world):
 
 
 def test_a_stream_that_goes_leaves_no_timer_and_no_listener_behind(world):
-    s = sub("parameter", {"node": "/t", "name": "ratio", "id": "ratio"})
+    s = feed_subscription("parameter", {"node": "/t", "name": "ratio", "id": "ratio"})
     world.feed.watch(s, lambda: None)
     world.feed.unwatch(s)
     assert [t for t in world.executor.timers if not t.cancelled] == [] and world.feed._by_node == {}
@@ -135,5 +98,5 @@ def test_a_stream_that_goes_leaves_no_timer_and_no_listener_behind(world):
 @pytest.mark.parametrize("target", [{"node": "/t", "name": "x"}, {"node": "", "name": "x", "id": "x"}])
 def test_check_refuses_a_parameter_it_cannot_name(world, target):
     with pytest.raises(IpcError) as info:
-        world.feed.check(sub("parameter", target))
+        world.feed.check(feed_subscription("parameter", target))
     assert info.value.code == "bad-request"

@@ -19,6 +19,26 @@ from tests.support.rospub import RosNode, publisher, unique_topic
 from tests.support.rosworker import RosWorker
 
 
+@pytest.fixture
+def dealer():
+    """``dealer(runtime_dir)``: a bare DEALER socket on that ROS worker's work socket, as a hand-made or hostile
+    client has one; closed after the test."""
+    ctx = zmq.Context()
+    socks: list[zmq.Socket] = []
+
+    def make(runtime_dir: str) -> zmq.Socket:
+        sock = ctx.socket(zmq.DEALER)
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.connect(protocol.endpoint(runtime_dir))
+        socks.append(sock)
+        return sock
+
+    yield make
+    for sock in socks:
+        sock.close()
+    ctx.term()
+
+
 def silent(topics: list[str]) -> RosNode:
     """A node with publishers that exist in the graph but will not publish for a long time."""
     return RosNode({"node": "silent", "publish": [
@@ -30,8 +50,7 @@ def test_cold_wait_cap_sheds_excess_cold_callers_while_warm_topics_answer(nodes)
     warm = unique_topic("warm")
     nodes.append(silent(cold))
     nodes.append(publisher("warm", warm, "std_msgs/msg/String", {"data": "w"}, rate=20))
-    worker = RosWorker(cold_wait_cap=2)
-    try:
+    with RosWorker(cold_wait_cap=2) as worker:
         worker.sample_data(warm)
         poll_until(lambda: sum(t["name"] in cold for t in worker.call("graph")["topics"]) == 3, 10,
                    message="silent publishers discovered")
@@ -57,15 +76,11 @@ def test_cold_wait_cap_sheds_excess_cold_callers_while_warm_topics_answer(nodes)
             t.join(15)
         assert [a["reason"] for a in answers] == ["timeout", "timeout"]
         assert worker.stats()["data_provider"]["concurrent_cold_waits"] == 0
-    finally:
-        worker.stop()
 
 
 def test_watchdog_trips_once_per_episode_and_clears_when_idle():
-    worker = RosWorker(watchdog_threshold=200, debug_commands=True)
-    try:
-        done = threading.Thread(target=lambda: worker.call("debug_sleep", {"seconds": 1.5}, timeout=10))
-        done.start()
+    with RosWorker(watchdog_threshold=200, debug_commands=True) as worker:
+        done = worker.busy(1.5)
         poll_until(lambda: worker.stats()["executor"]["degraded"], 5, message="degraded")
         busy = worker.stats()["executor"]   # readable while the ROS thread is stuck
         assert busy["watchdog_trips"] == 1
@@ -75,15 +90,11 @@ def test_watchdog_trips_once_per_episode_and_clears_when_idle():
         after = worker.stats()["executor"]
         assert after["watchdog_trips"] == 1
         assert after["max_task_latency_us"] >= 1_400_000
-    finally:
-        worker.stop()
 
 
 def test_full_queue_answers_backpressure_at_once_and_counts_drops():
-    worker = RosWorker(max_queue_depth=2, debug_commands=True)
-    try:
-        blocker = threading.Thread(target=lambda: worker.call("debug_sleep", {"seconds": 2}, timeout=10))
-        blocker.start()
+    with RosWorker(max_queue_depth=2, debug_commands=True) as worker:
+        blocker = worker.busy(2)
         poll_until(lambda: worker.stats()["executor"]["current_task_age_ms"] > 0, 5, message="busy")
         outcomes: list = []
 
@@ -106,21 +117,13 @@ def test_full_queue_answers_backpressure_at_once_and_counts_drops():
         executor = worker.stats()["executor"]
         assert executor["queue_dropped"] == len(errors)
         assert executor["queue_max_depth_observed"] == 2
-    finally:
-        worker.stop()
 
 
 def test_shutdown_wakes_waiters_drains_and_exits_zero(nodes):
     topic = unique_topic("never")
     nodes.append(silent([topic]))
     worker = RosWorker()
-    poll_until(lambda: any(t["name"] == topic for t in worker.call("graph")["topics"]), 10,
-               message="silent publisher discovered")
-    answers: list = []
-    waiter = threading.Thread(target=lambda: answers.append(worker.sample(topic, timeout_ms=20000)))
-    waiter.start()
-    poll_until(lambda: worker.stats()["data_provider"]["concurrent_cold_waits"] == 1, 5,
-               message="cold waiter")
+    waiter, answers = worker.cold_waiter(topic)
     started = time.monotonic()
     worker.signal(15)
     code = worker.proc.wait(10)
@@ -164,32 +167,23 @@ def test_every_waiter_hears_the_shutdown_answer_before_the_socket_closes(nodes):
 
 
 def test_second_worker_on_the_same_runtime_dir_refuses_to_start():
-    worker = RosWorker()
-    try:
+    with RosWorker() as worker:
         second = RosWorker(runtime_dir=worker.runtime_dir, wait=False)
         assert second.proc.wait(30) == 3
         assert any("already serves" in line for line in second.output)
         assert worker.call("ping")["pid"] == worker.pid   # the socket was not stolen
-    finally:
-        worker.stop()
 
 
 def test_runtime_dir_and_socket_are_private():
-    worker = RosWorker()
-    try:
+    with RosWorker() as worker:
         assert os.stat(worker.runtime_dir).st_mode & 0o777 == 0o700
         sock = os.path.join(worker.runtime_dir, protocol.SOCKET_NAME)
         assert os.stat(sock).st_mode & 0o077 == 0
-    finally:
-        worker.stop()
 
 
-def test_hostile_ipc_frames_get_an_error_or_are_dropped_and_the_worker_keeps_serving():
+def test_hostile_ipc_frames_get_an_error_or_are_dropped_and_the_worker_keeps_serving(dealer):
     worker = RosWorker()
-    ctx = zmq.Context()
-    sock = ctx.socket(zmq.DEALER)
-    sock.setsockopt(zmq.LINGER, 0)
-    sock.connect(protocol.endpoint(worker.runtime_dir))
+    sock = dealer(worker.runtime_dir)
 
     def ask(frames, expect_reply: bool):
         sock.send_multipart(frames)
@@ -228,27 +222,20 @@ def test_hostile_ipc_frames_get_an_error_or_are_dropped_and_the_worker_keeps_ser
         good = {"v": 1, "id": 13, "cmd": "pool", "args": {}, "deadline_ms": 1000, "request_id": "a-Z_0.9"}
         assert ask([msgpack.packb(good)], expect_reply=True)["ok"] is True
         # An oversized frame: zmq drops the connection of a peer that sends one.
-        big = ctx.socket(zmq.DEALER)
-        big.setsockopt(zmq.LINGER, 0)
-        big.connect(protocol.endpoint(worker.runtime_dir))
+        big = dealer(worker.runtime_dir)
         big.send(b"\x00" * (protocol.MAX_FRAME + 10))
         big.close()
         assert worker.call("ping")["pid"] == worker.pid
         assert worker.stats()["details"]["ipc_dropped_frames"] >= 6
         assert worker.proc.poll() is None
     finally:
-        sock.close()
-        ctx.term()
         worker.stop()
 
 
-def test_ping_and_stats_are_refused_on_the_work_socket_and_answered_on_the_control_socket():
+def test_ping_and_stats_are_refused_on_the_work_socket_and_answered_on_the_control_socket(dealer):
     """The control socket is their only home: no in-tree client sends them to the work socket."""
     worker = RosWorker()
-    ctx = zmq.Context()
-    sock = ctx.socket(zmq.DEALER)
-    sock.setsockopt(zmq.LINGER, 0)
-    sock.connect(protocol.endpoint(worker.runtime_dir))
+    sock = dealer(worker.runtime_dir)
     try:
         for rid, cmd in enumerate(protocol.IMMEDIATE, 1):
             sock.send(msgpack.packb({"v": 1, "id": rid, "cmd": cmd, "args": {}, "deadline_ms": 1000}))
@@ -260,20 +247,15 @@ def test_ping_and_stats_are_refused_on_the_work_socket_and_answered_on_the_contr
         assert worker.call("ping")["pid"] == worker.pid  # the client sends them to the control socket
         assert "executor" in worker.stats()
     finally:
-        sock.close()
-        ctx.term()
         worker.stop()
 
 
-def test_ping_and_stats_never_wait_behind_a_queue_of_short_tasks():
+def test_ping_and_stats_never_wait_behind_a_queue_of_short_tasks(dealer):
     """120 tasks of 15 ms each once kept ``stats`` waiting 1.8 s: /health said the worker was dead.
 
     Here 400 tasks of 4 ms: each far below any take-over threshold, 1.6 s together."""
     gw = Gateway("--debug-commands", "--max-queue-depth", "1000", "--log-level", "warning")
-    ctx = zmq.Context()
-    flood = ctx.socket(zmq.DEALER)
-    flood.setsockopt(zmq.LINGER, 0)
-    flood.connect(protocol.endpoint(gw.runtime_dir))
+    flood = dealer(gw.runtime_dir)
     client = gw.rosworker_client()
     try:
         for rid in range(400):
@@ -296,8 +278,6 @@ def test_ping_and_stats_never_wait_behind_a_queue_of_short_tasks():
         assert replies == set(range(400))   # and every queued task was served
     finally:
         client.close()
-        flood.close()
-        ctx.term()
         gw.stop()
 
 

@@ -216,13 +216,7 @@ def test_eviction_wakes_the_waiters_of_the_entry(nodes):
     nodes.append(quiet)
     worker = RosWorker(graph_poll_tick=50)
     try:
-        poll_until(lambda: any(t["name"] == topic for t in worker.call("graph")["topics"]), 10,
-                   message="quiet publisher discovered")
-        answers: list = []
-        waiter = threading.Thread(target=lambda: answers.append(worker.sample(topic, timeout_ms=20000)))
-        waiter.start()
-        poll_until(lambda: worker.stats()["data_provider"]["concurrent_cold_waits"] == 1, 5,
-                   message="cold waiter")
+        waiter, answers = worker.cold_waiter(topic)
         quiet.stop()  # the publisher leaves: the entry is evicted, its waiter woken long before 20 s
         waiter.join(15)
         assert answers and answers[0]["status"] == "metadata_only"

@@ -16,48 +16,13 @@ from rosworker.core.samplers import SamplerRegistry
 from rosworker.core.task import Timer
 from rosworker.operations import feed as feed_mod
 from rosworker.operations.feed import ExecutionFeed
-from rosworker.subscriptions.registry import Subscription, _target
-
-
-class Executor:
-    def __init__(self):
-        self.timers: list[Timer] = []
-
-    def call_later(self, delay, fn):
-        timer = Timer(delay, fn)
-        self.timers.append(timer)
-        return timer
-
-    def guarded(self, _where, fn, *args):
-        return fn(*args)
-
-    def fire(self):
-        """Run the one live timer (a feed keeps exactly one armed)."""
-        live = [t for t in self.timers if not t.cancelled]
-        self.timers = []
-        assert len(live) == 1, live
-        live[0].fn()
-
-
-class Events:
-    """The core's events channel: what the feed publishes."""
-
-    def __init__(self):
-        self.frames: list[tuple[bytes, dict, bytes]] = []
-
-    def publish(self, key, meta, data=b"{}"):
-        self.frames.append((key, meta, data))
-
-
-def sub(kind, target, interval="fast"):
-    return Subscription(id="sub_0123456789abcdef", collection="apps", entity_id="tuner", resource="/r",
-                        topic="", bytes="array", interval=interval, duration=60, created_at_ns=0, kind=kind,
-                        target=target)
+from rosworker.subscriptions.registry import _target
+from tests.support.rosunit import FakeEvents, TimerExecutor, feed_subscription
 
 
 @pytest.fixture
 def world():
-    executor, events, goals, ended = Executor(), Events(), {}, []
+    executor, events, goals, ended = TimerExecutor(), FakeEvents(), {}, []
 
     def get(goal_id):
         if goal_id not in goals:
@@ -78,7 +43,7 @@ def world():
 def test_a_finished_goal_repeats_its_last_frame_then_ends(world, monkeypatch):
     goal = SimpleNamespace(done=False, wire=lambda: {"id": "g", "status": "running"})
     world.goals["g"] = goal
-    s = sub("execution", {"goal": "g", "operation_id": "fib"})
+    s = feed_subscription("execution", {"goal": "g", "operation_id": "fib"})
     world.feed.check(s)
     world.watch(s)
     world.executor.fire()
@@ -94,7 +59,7 @@ def test_a_finished_goal_repeats_its_last_frame_then_ends(world, monkeypatch):
 
 def test_a_goal_forgotten_under_its_stream_ends_it_with_an_error(world):
     world.goals["g"] = SimpleNamespace(done=False, wire=lambda: {"id": "g"})
-    s = sub("execution", {"goal": "g"})
+    s = feed_subscription("execution", {"goal": "g"})
     world.watch(s)
     del world.goals["g"]
     world.executor.fire()
@@ -106,7 +71,7 @@ def test_a_goal_forgotten_under_its_stream_ends_it_with_an_error(world):
 @pytest.mark.parametrize("target,code", [({"goal": "nope"}, "no-such-execution"), ({}, "bad-request")])
 def test_check_refuses_an_execution_it_cannot_follow(world, target, code):
     with pytest.raises(IpcError) as info:
-        world.feed.check(sub("execution", target))
+        world.feed.check(feed_subscription("execution", target))
     assert info.value.code == code
 
 

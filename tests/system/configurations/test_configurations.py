@@ -252,12 +252,9 @@ def test_a_node_without_parameter_services_is_503_at_once(gw):
 
 
 def test_a_node_that_leaves_between_list_and_set(gw):
-    node = ParamNode({"node": "leaver", "namespace": "/cfgleave", "params": [{"name": "v", "value": 1}]})
-    try:
+    with ParamNode({"node": "leaver", "namespace": "/cfgleave", "params": [{"name": "v", "value": 1}]}):
         poll_until(lambda: gw.get("/apps/leaver").status_code == 200, 20, message="leaver as an app")
         assert gw.get("/apps/leaver/configurations").status_code == 200
-    finally:
-        node.stop()
     r = put(gw, "/apps/leaver/configurations/v", {"data": 2})
     # The app is gone (404), or the gateway had not seen it leave yet and its services are (503).
     assert (r.status_code, r.json()["error_code"]) in ((404, "entity-not-found"), (503, "vendor-error")), r.text
@@ -320,30 +317,23 @@ def test_reset_all_names_a_node_that_does_not_answer(gw):
 def test_a_node_started_again_is_asked_again_though_it_is_remembered_as_unavailable(gw):
     spec = {"node": "revived", "namespace": "/cfgrev", "params": [{"name": "z", "value": 4}]}
     base = "/apps/revived/configurations/z"
-    node = ParamNode({**spec, "hang": True})
-    try:
+    with ParamNode({**spec, "hang": True}):
         poll_until(lambda: gw.get("/apps/revived").status_code == 200, 20, message="revived as an app")
         assert gw.get(base).status_code == 503   # it did not answer: remembered for 30 s (the module's gateway)
         started = time.monotonic()
         assert gw.get(base).status_code == 503 and time.monotonic() - started < TIMEOUT  # at once: cached
-    finally:
-        node.stop()
-    node = ParamNode(spec)  # the same node started again, well inside those 30 s
-    try:
+    with ParamNode(spec):  # the same node started again, well inside those 30 s
         got = poll_until(lambda: (r := gw.get(base)).status_code == 200 and r, 20,
                          message="the new start asked although the old one is remembered")
         assert got.json()["data"] == 4
-    finally:
-        node.stop()
 
 
 def test_a_node_that_answers_late_is_asked_again_at_once(gw):
     """Slow, not hung: a node remembered as unavailable answers the timed-out request late; the next
     request asks it again instead of being refused for the whole negative cache (30 s here)."""
     base = "/apps/sluggish/configurations/s"
-    node = ParamNode({"node": "sluggish", "namespace": "/cfgslow", "params": [{"name": "s", "value": 6}],
-                      "hang": "until-usr1"})
-    try:
+    with ParamNode({"node": "sluggish", "namespace": "/cfgslow", "params": [{"name": "s", "value": 6}],
+                    "hang": "until-usr1"}) as node:
         poll_until(lambda: gw.get("/apps/sluggish").status_code == 200, 20, message="sluggish as an app")
         # asked, and no answer within the timeout (a first try may find its services not matched yet)
         poll_until(lambda: (r := gw.get(base)).status_code == 503
@@ -354,35 +344,26 @@ def test_a_node_that_answers_late_is_asked_again_at_once(gw):
         got = poll_until(lambda: (r := gw.get(base)).status_code == 200 and r, 15,
                          message="the late answerer asked again well inside the 30 s")
         assert got.json()["data"] == 6
-    finally:
-        node.stop()
 
 
 def test_a_restarted_node_is_a_new_record(gw):
     spec = {"node": "phoenix", "namespace": "/cfgphx", "params": [{"name": "v", "value": 1}]}
     base = "/apps/phoenix/configurations/v"
-    node = ParamNode(spec)
-    try:
+    with ParamNode(spec):
         poll_until(lambda: gw.get(base).status_code == 200, 20, message="phoenix's parameter")
         assert put(gw, base, {"data": 5}).status_code == 200
-    finally:
-        node.stop()
-    node = ParamNode({**spec, "params": [{"name": "v", "value": 2}]})
-    try:
+    with ParamNode({**spec, "params": [{"name": "v", "value": 2}]}):
         poll_until(lambda: gw.get(base).status_code == 200 and gw.get(base).json()["data"] == 2, 20,
                    message="the new phoenix's parameter")
         assert put(gw, base, {"data": 7}).status_code == 200
         assert delete(gw, base).status_code == 204
         assert gw.get(base).json()["data"] == 2  # this start's first value, not the last one's
-    finally:
-        node.stop()
 
 
 def test_a_parameter_declared_later_is_recorded_from_its_parameter_event(gw, robot):
     base = "/apps/latecomer/configurations"
-    node = ParamNode({"node": "latecomer", "namespace": "/cfglate",
-                      "declare_on": {"trigger": "arm", "name": "late", "value": 3}})
-    try:
+    with ParamNode({"node": "latecomer", "namespace": "/cfglate",
+                    "declare_on": {"trigger": "arm", "name": "late", "value": 3}}):
         poll_until(lambda: gw.get(base).status_code == 200, 20, message="latecomer's parameters")  # recorded
         assert put(gw, f"{base}/arm", {"data": True}).status_code == 200
         # Another client changes it as soon as it is declared, before the gateway ever reads it:
@@ -392,8 +373,6 @@ def test_a_parameter_declared_later_is_recorded_from_its_parameter_event(gw, rob
         assert gw.get(f"{base}/late").json()["data"] == 9
         assert delete(gw, f"{base}/late").status_code == 204
         assert gw.get(f"{base}/late").json()["data"] == 3
-    finally:
-        node.stop()
 
 
 def test_the_gateways_own_node_is_answered_without_calling_itself(gw):

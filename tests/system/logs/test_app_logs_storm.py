@@ -41,8 +41,7 @@ def _app(gw: Gateway, name: str) -> None:
 
 def test_a_10khz_storm_costs_bounded_cpu_and_memory_and_health_keeps_answering(gw):
     name = f"storm_{uuid.uuid4().hex[:6]}"
-    node = LoggerNode(name)
-    try:
+    with LoggerNode(name) as node:
         _app(gw, name)
         worker = gw.rosworker()
         cpu_before = sum(worker.cpu_times()[:2])
@@ -84,14 +83,11 @@ def test_a_10khz_storm_costs_bounded_cpu_and_memory_and_health_keeps_answering(g
         assert 0 < len(items) <= BUFFER
         numbers = [int(i["message"].split()[-1]) for i in items]
         assert numbers == sorted(numbers)  # the newest, oldest first
-    finally:
-        node.stop()
 
 
 def test_the_byte_cap_and_long_lines(gw):
     name = f"big_{uuid.uuid4().hex[:6]}"
-    big = LoggerNode(name)
-    try:
+    with LoggerNode(name) as big:
         _app(gw, name)
         big.log(*[("info", f"{i} " + "x" * 4000) for i in range(30)], ("warning", "y" * 20000))
         poll_until(lambda: gw.get(f"/apps/{name}/logs", params={"severity": "warning"}).json()["items"], 15,
@@ -103,8 +99,6 @@ def test_the_byte_cap_and_long_lines(gw):
         kept = gw.get(f"/apps/{name}/logs").json()["items"]
         assert len(kept) < 31 and kept[-1]["severity"] == "warning"  # the byte cap pushed out the oldest
         assert logs["logs_evicted"] > 0
-    finally:
-        big.stop()
 
 
 def test_lines_of_a_node_past_the_node_cap_are_dropped_and_counted():

@@ -227,20 +227,6 @@ def test_with_an_api_token_only_its_holder_makes_changes_or_ends_subscriptions(r
         gw.stop()
 
 
-def _worker_of(gw, local_port: int) -> int:
-    """The pid of the HTTP worker holding the connection from ``local_port``."""
-    def find():
-        for child in psutil.Process(gw.pid).children(recursive=True):
-            try:
-                for conn in child.net_connections(kind="tcp"):
-                    if conn.raddr and conn.raddr.port == local_port:
-                        return child.pid
-            except psutil.Error:
-                continue
-        return None
-    return poll_until(find, 5, message="the HTTP worker of a connection")
-
-
 def test_a_subscription_made_through_one_worker_streams_through_another(gw):
     body = json.dumps({"resource": f"/api/v1/apps/{APP}/data{TOPIC}", "interval": "normal", "duration": 60})
     for _ in range(40):
@@ -249,10 +235,10 @@ def test_a_subscription_made_through_one_worker_streams_through_another(gw):
         r = conn.getresponse()
         sub = json.loads(r.read())
         assert r.status == 201, sub
-        made_by = _worker_of(gw, conn.sock.getsockname()[1])   # the connection is still open
+        made_by = gw.worker_of(conn.sock.getsockname()[1])   # the connection is still open
         stream = open_stream(gw, sub)
         try:
-            streamed_by = _worker_of(gw, stream.local_port)
+            streamed_by = gw.worker_of(stream.local_port)
             if streamed_by != made_by:
                 event = stream.next(timeout=5)
                 assert event["payload"]["id"] == TOPIC
@@ -514,7 +500,7 @@ def test_a_retime_whose_updated_event_was_lost_still_reaches_the_open_stream(rob
         args = {"collection": "apps", "entity_id": APP, "id": sub["id"]}
         with open_stream(gw, sub) as stream:
             assert "payload" in stream.next(timeout=5)
-            worker = _worker_of(gw, stream.local_port)
+            worker = gw.worker_of(stream.local_port)
             old = gw.rosworker_pid()
             os.kill(worker, signal.SIGSTOP)
             os.kill(old, signal.SIGKILL)

@@ -206,19 +206,6 @@ def test_writes_need_the_token_reads_do_not(gw, topic):
     assert requests.delete(url, headers=AUTH, timeout=10).status_code == 204
 
 
-def _worker_of(gw, local_port: int) -> int:
-    def find():
-        for child in psutil.Process(gw.pid).children(recursive=True):
-            try:
-                for conn in child.net_connections(kind="tcp"):
-                    if conn.raddr and conn.raddr.port == local_port:
-                        return child.pid
-            except psutil.Error:
-                continue
-        return None
-    return poll_until(find, 5, message="the HTTP worker of a connection")
-
-
 def test_a_trigger_made_through_one_worker_streams_through_the_other(gw, topic):
     body = json.dumps({"resource": topic.resource, "trigger_condition": {"condition_type": "OnChange"},
                        "multishot": True})
@@ -228,10 +215,10 @@ def test_a_trigger_made_through_one_worker_streams_through_the_other(gw, topic):
         r = conn.getresponse()
         trig = json.loads(r.read())
         assert r.status == 201, trig
-        made_by = _worker_of(gw, conn.sock.getsockname()[1])
+        made_by = gw.worker_of(conn.sock.getsockname()[1])
         stream = topic.stream(trig)
         try:
-            if _worker_of(gw, stream.local_port) != made_by:
+            if gw.worker_of(stream.local_port) != made_by:
                 topic.pub.wait_subscribers(1)
                 topic.pub.send({"data": float(attempt)})
                 assert stream.next(timeout=10)["payload"] == {"data": float(attempt)}

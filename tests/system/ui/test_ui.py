@@ -23,7 +23,7 @@ import requests
 
 from common.harness.gateway import Gateway
 from common.harness.procs import Proc, poll_until
-from tests.support.browser import Watch, launch, require_chromium
+from tests.support.browser import Watch, headless_browser
 
 TOKEN = "ui-test-token-0123456789"
 # The demo robot's apps and one topic of each (demo/robot.py).
@@ -54,11 +54,7 @@ def demo_is_discovered(gw: Gateway) -> bool:
 
 @pytest.fixture(scope="module")
 def browser():
-    require_chromium()
-    from playwright.sync_api import expect as playwright_expect
-
-    playwright_expect.set_options(timeout=15_000)   # a loaded 2-core machine is slow; no timing is asserted
-    with launch() as b:
+    with headless_browser(15_000) as b:
         yield b
 
 

@@ -10,7 +10,7 @@ import pytest
 from common.harness.diagpub import DiagPub
 from common.harness.gateway import Gateway
 from common.harness.procs import poll_until
-from tests.support.browser import Watch, launch, require_chromium
+from tests.support.browser import Watch, headless_browser
 
 TOKEN = "ui-faults-token-0123456789"
 
@@ -23,11 +23,7 @@ def expect(*args, **kw):
 
 @pytest.fixture(scope="module")
 def browser():
-    require_chromium()
-    from playwright.sync_api import expect as playwright_expect
-
-    playwright_expect.set_options(timeout=20_000)   # a loaded 2-core machine is slow; no timing is asserted
-    with launch() as b:
+    with headless_browser(20_000) as b:
         yield b
 
 
