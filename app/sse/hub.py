@@ -67,6 +67,9 @@ class Hub(channel.Subscriber):
         self.sending: set[Stream] = set()      # direct streams in a blocking write (the stall cut)
         self._next_gone_scan = 0.0
         self._wake = gevent.event.Event()      # set by a stream's opening and the last one's end
+        # for the kinds that index their streams (index()): resource id -> its streams; key -> its watchers
+        self.by_id: dict[Any, set[Stream]] = {}
+        self.by_key: dict[bytes, set[Stream]] = {}
 
     # ---- what a kind of hub says ----------------------------------------------------------------
     def added(self, stream: Stream) -> None:
@@ -100,6 +103,20 @@ class Hub(channel.Subscriber):
         self.removed(stream)
         if not self.streams:
             self._wake.set()   # one more round at once: its counters into the metrics
+
+    def index(self, stream: Stream) -> None:
+        """``stream`` in ``by_id`` (the open streams of one resource) and watching its ``key`` in ``by_key``."""
+        self.by_id.setdefault(stream.id, set()).add(stream)
+        self.watch(self.by_key, stream.key, stream, stream.key)
+
+    def unindex(self, stream: Stream) -> bool:
+        """Out of ``by_id`` and ``by_key``; True when it was the key's last stream (unsubscribed)."""
+        streams = self.by_id.get(stream.id)
+        if streams is not None:
+            streams.discard(stream)
+            if not streams:
+                del self.by_id[stream.id]
+        return self.unwatch(self.by_key, stream.key, stream, stream.key)
 
     def watch(self, index: dict[Any, set[Stream]], name: Any, stream: Stream, key: bytes) -> None:
         """``stream`` watches ``name`` of ``index`` (a kind's own: a key, a trigger id); the first

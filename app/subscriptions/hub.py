@@ -69,8 +69,6 @@ class StreamHub(Hub):
         super().__init__(runtime_dir, send_timeout, stopping)
         self._lookup = lookup                  # a stream's subscription from the ROS worker (IpcError)
         self.kinds = kinds or {}               # what renders each kind's frames (core/resources.py)
-        self.by_key: dict[bytes, set[Stream]] = {}
-        self.by_id: dict[str, set[Stream]] = {}
         self._next_scan = 0.0
         self._last_payload: dict[tuple[bytes, str], tuple[float, bytes]] = {}
 
@@ -90,26 +88,18 @@ class StreamHub(Hub):
         renderer = self.kinds.get(stream.kind)
         if renderer is not None and renderer.opening is not None:
             renderer.opening(stream)
-        self._add(stream)
-        self.by_id.setdefault(stream.id, set()).add(stream)
+        self.index(stream)
         cached = self._last_payload.get((stream.key, stream.entity_id))
         if cached is not None and time.monotonic() - cached[0] < events.INTERVALS[stream.interval] * 2:
             stream.push(cached[1])  # the latest value at once, not one interval later
 
     def removed(self, stream: Stream) -> None:
-        streams = self.by_id.get(stream.id)
-        if streams is not None:
-            streams.discard(stream)
-            if not streams:
-                del self.by_id[stream.id]
-        self._remove(stream)
+        if self.unindex(stream):
+            self._forget_payload(stream.key)
 
-    def _add(self, stream: Stream) -> None:
-        self.watch(self.by_key, stream.key, stream, stream.key)
-
-    def _remove(self, stream: Stream) -> None:
-        if self.unwatch(self.by_key, stream.key, stream, stream.key):
-            self._last_payload = {k: v for k, v in self._last_payload.items() if k[0] != stream.key}
+    def _forget_payload(self, key: bytes) -> None:
+        """Nobody here watches ``key`` any more: its latest frames are not kept."""
+        self._last_payload = {k: v for k, v in self._last_payload.items() if k[0] != key}
 
     def last(self, stream: Stream) -> bytes | None:
         return self.error_frame(stream, SHUTDOWN)
@@ -174,9 +164,10 @@ class StreamHub(Hub):
         if stream.ended:
             return
         if key != stream.key:
-            self._remove(stream)
+            if self.unwatch(self.by_key, stream.key, stream, stream.key):
+                self._forget_payload(stream.key)
             stream.key = key
-            self._add(stream)
+            self.watch(self.by_key, key, stream, key)
         stream.interval = interval
         stream.expires = time.monotonic() + expires_in
         stream.wake.set()

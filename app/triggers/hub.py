@@ -71,8 +71,7 @@ class TriggerHub(Hub):
                  stopping: Callable[[], bool] = lambda: False, send_timeout: float = 30.0):
         super().__init__(runtime_dir, send_timeout, stopping)
         self._lookup = lookup           # (stream, open) -> trig_get / trig_open answer (IpcError)
-        self.by_id: dict[str, set[Stream]] = {}    # trigger id -> its open streams
-        self.by_key: dict[bytes, set[Stream]] = {}  # group key -> the open streams of its triggers
+        # by_id: trigger id -> its open streams; by_key: group key -> the open streams of its triggers
 
     # ---- streams --------------------------------------------------------------------------------
     def stream(self, trigger: dict[str, Any], sock: Any = None, framed: bool = False) -> Stream:
@@ -84,16 +83,10 @@ class TriggerHub(Hub):
         return stream
 
     def added(self, stream: Stream) -> None:
-        self.by_id.setdefault(stream.id, set()).add(stream)
-        self.watch(self.by_key, stream.key, stream, stream.key)
+        self.index(stream)
 
     def removed(self, stream: Stream) -> None:
-        streams = self.by_id.get(stream.id)
-        if streams is not None:
-            streams.discard(stream)
-            if not streams:
-                del self.by_id[stream.id]
-        self.unwatch(self.by_key, stream.key, stream, stream.key)
+        self.unindex(stream)
 
     def opening(self, stream: Stream) -> None:
         """Before the response head: the subscription confirmed, then what fired before it opened."""

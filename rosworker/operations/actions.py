@@ -44,6 +44,7 @@ from ..core.task import Task
 from ..ros.decode import from_plain
 from ..ros.encode import to_plain
 from ..ros.msgtypes import ConversionError
+from . import lru
 
 log = logging.getLogger("sovd.rosworker.actions")
 
@@ -178,10 +179,10 @@ class ActionClients:
     def _client(self, path: str, type_name: str, action: type) -> Pooled:
         from rclpy.action import ActionClient
 
-        pooled = self.entries.get(path)
-        if pooled is not None and pooled.type_name == type_name:
-            self.entries.move_to_end(path)
+        pooled = lru.reuse(self.entries, path, type_name)
+        if pooled is not None:
             return pooled
+        pooled = self.entries.get(path)
         if pooled is not None:
             if pooled.busy:
                 raise IpcError("action-unavailable", f"{path} has goals of type {pooled.type_name} running; "
@@ -193,11 +194,7 @@ class ActionClients:
         except Exception as exc:
             raise IpcError("action-unavailable", f"Could not create a client for {path}: {exc}",
                            {"action": path}) from None
-        while len(self.entries) >= self.max_clients:
-            oldest = next((p for p, e in self.entries.items() if not e.busy), None)
-            if oldest is None:
-                break
-            self._destroy(oldest)
+        lru.make_room(self.entries, self.max_clients, lambda e: e.busy, self._destroy)
         pooled = self.entries[path] = Pooled(path, type_name, action, client)
         self._count()
         return pooled

@@ -29,6 +29,7 @@ from ..core.task import Task
 from ..ros.decode import from_plain
 from ..ros.encode import to_plain
 from ..ros.msgtypes import ConversionError
+from . import lru
 
 log = logging.getLogger("sovd.rosworker.services")
 
@@ -98,22 +99,18 @@ class ServiceClients:
         return due
 
     def _client(self, path: str, type_name: str, srv: type) -> Pooled:
-        pooled = self.entries.get(path)
-        if pooled is not None and pooled.type_name == type_name:
-            self.entries.move_to_end(path)
-            return pooled
+        pooled = lru.reuse(self.entries, path, type_name)
         if pooled is not None:
+            return pooled
+        if path in self.entries:
             self._destroy(path, "type-change")
         try:
             client = self.node.create_client(srv, path)
         except Exception as exc:
             raise IpcError("service-unavailable", f"Could not create a client for {path}: {exc}",
                            {"service": path}) from None
-        while len(self.entries) >= self.max_clients:
-            oldest = next((p for p, e in self.entries.items() if not e.calls and not e.waiting), None)
-            if oldest is None:
-                break  # every client has calls open: the cap is exceeded until they finish
-            self._destroy(oldest, "lru")
+        lru.make_room(self.entries, self.max_clients, lambda e: bool(e.calls or e.waiting),
+                      lambda oldest: self._destroy(oldest, "lru"))
         pooled = self.entries[path] = Pooled(path, type_name, srv, client)
         self._count()
         return pooled

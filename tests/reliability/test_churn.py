@@ -37,22 +37,11 @@ import threading
 import time
 
 from common.harness.procs import REPO, poll_until
-from tests.reliability.load import (
-    Answer,
-    Client,
-    HealthProbe,
-    Load,
-    Req,
-    call,
-    memory,
-    record,
-    restarts_in,
-    scaled,
-)
+from tests.reliability import load
 
-TOPICS = [f"/churn/t{i}" for i in range(scaled(4, 6))]
-CYCLES = scaled(40, 500)
-READERS = scaled(6, 12)
+TOPICS = [f"/churn/t{i}" for i in range(load.scaled(4, 6))]
+CYCLES = load.scaled(40, 500)
+READERS = load.scaled(6, 12)
 POOL = len(TOPICS) - 1
 STRING, INT32 = "std_msgs/msg/String", "std_msgs/msg/Int32"
 STEP_TIMEOUT = 30.0  # hang catcher for one step of a cycle
@@ -155,15 +144,15 @@ class Controller(threading.Thread):
         self.node, self.port, self.path, self.topic = node, port, path, topic
         self.cycles = range(first, first + cycles)
         self.marks: dict[tuple[int, str], float] = {}   # (cycle, "A"|"B"|"gone") -> when it was made
-        self.answers: list[Answer] = []
+        self.answers: list[load.Answer] = []
         self.error: BaseException | None = None
         self.drop_waits: list[float] = []
         self.subscribed_seen = 0   # cycles in which the helper saw the gateway's subscription
 
-    def _until(self, predicate, what: str, client: Client) -> None:
+    def _until(self, predicate, what: str, client: load.Client) -> None:
         deadline = time.monotonic() + STEP_TIMEOUT
         while time.monotonic() < deadline:
-            answer = call(client, Req("controller", "GET", self.path), sample_info)
+            answer = load.call(client, load.Req("controller", "GET", self.path), sample_info)
             self.answers.append(answer)
             if answer.info is not None and predicate(answer.info):
                 return
@@ -171,7 +160,7 @@ class Controller(threading.Thread):
         raise AssertionError(f"{self.topic}: {what} not visible within {STEP_TIMEOUT} s")
 
     def run(self) -> None:
-        client = Client(self.port)
+        client = load.Client(self.port)
         try:
             for c in self.cycles:
                 self.marks[(c, "A")] = time.monotonic()
@@ -228,7 +217,7 @@ def stale_label(label: str, seen: int, finished: float, marks: dict[tuple[int, s
     return False
 
 
-def check_topic(topic: str, answers: list[Answer], marks: dict[tuple[int, str], float]) -> list[str]:
+def check_topic(topic: str, answers: list[load.Answer], marks: dict[tuple[int, str], float]) -> list[str]:
     """The consistency rules of the module docstring, for one topic's answers.
 
     A data answer has an exact version.  A "no publishers" answer was decided
@@ -281,13 +270,13 @@ def test_publisher_churn_never_serves_stale_types_and_drops_subscriptions(gatewa
         gw = gateways("--max-pool-size", str(POOL), "--log-level", "warning")
         host = gw.get("/components").json()["items"][0]["id"]
         base = f"/api/v1/components/{host}/data"
-        rss_before = memory(gw.pid)
+        rss_before = load.memory(gw.pid)
         per_topic = math.ceil(CYCLES / len(TOPICS))
         controllers = [Controller(node, gw.port, base + t, t, per_topic, 1) for t in TOPICS]
-        readers = Load(gw.port, lambda rng: Req("reader", "GET", base + rng.choice(TOPICS)), READERS,
+        readers = load.Load(gw.port, lambda rng: load.Req("reader", "GET", base + rng.choice(TOPICS)), READERS,
                        inspect=sample_info)
         started = time.monotonic()
-        with HealthProbe(gw.port, interval=0.05) as probe:
+        with load.HealthProbe(gw.port, interval=0.05) as probe:
             readers.start()
             for c in controllers:
                 c.start()
@@ -298,10 +287,10 @@ def test_publisher_churn_never_serves_stale_types_and_drops_subscriptions(gatewa
         took = time.monotonic() - started
         hung = [c.topic for c in controllers if c.is_alive()]
         assert not hung, f"controllers hung: {hung}"
-        rss_after = memory(gw.pid)
+        rss_after = load.memory(gw.pid)
         everything = read + [a for c in controllers for a in c.answers]
         waits = sorted(w for c in controllers for w in c.drop_waits)
-        record("publisher churn", everything, probe=probe, restarts=restarts_in(gw.output),
+        load.record("publisher churn", everything, probe=probe, restarts=load.restarts_in(gw.output),
                rss_before=rss_before, rss_after=rss_after,
                note=f"{per_topic * len(TOPICS)} cycles on {len(TOPICS)} topics in {took:.0f} s, "
                     f"pool cap {POOL}, subscription gone after ≤{waits[-1] * 1000:.0f} ms"
@@ -322,7 +311,7 @@ def test_publisher_churn_never_serves_stale_types_and_drops_subscriptions(gatewa
         assert sum(c.subscribed_seen for c in controllers) > 0
         assert probe.samples and all(s[2] == 200 for s in probe.samples)
         assert probe.max_of("x-medkit-data-provider", "pool_size") <= POOL
-        assert restarts_in(gw.output) == 0
+        assert load.restarts_in(gw.output) == 0
         # After the churn: every topic is gone, and with it every subscription of the gateway.
         for topic in TOPICS:
             counts = node.cmd("count", topic=topic)
@@ -336,7 +325,7 @@ def test_publisher_churn_never_serves_stale_types_and_drops_subscriptions(gatewa
 def test_check_topic_catches_stale_answers():
     """The checker itself: a read that goes back in time, or names a replaced type, is caught."""
     def ans(started, finished, info):
-        return Answer("r", "/churn/x", started, finished - started, 200, "200", None, info)
+        return load.Answer("r", "/churn/x", started, finished - started, 200, "200", None, info)
 
     marks = {(1, "A"): 0.0, (1, "B"): 1.0, (1, "gone"): 2.0, (2, "A"): 3.0}
     good = [ans(0.1, 0.2, ("data", STRING, "c1", None)), ans(1.1, 1.2, ("data", INT32, 1, None)),

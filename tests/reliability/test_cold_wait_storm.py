@@ -17,23 +17,13 @@ import threading
 import requests
 
 from common.harness.procs import poll_until
-from tests.reliability.load import (
-    Client,
-    HealthProbe,
-    Load,
-    Req,
-    call,
-    memory,
-    record,
-    restarts_in,
-    scaled,
-)
+from tests.reliability import load
 from tests.support.rospub import RosNode, publisher, unique_topic
 
 CAP = 4
 SAMPLE_TIMEOUT = 3.0
-CALLERS = scaled(24, 60)
-ROUNDS = scaled(2, 10)
+CALLERS = load.scaled(24, 60)
+ROUNDS = load.scaled(2, 10)
 SILENT = [f"/coldwait/silent{i}" for i in range(CALLERS)]
 WARM = "/coldwait/warm"
 
@@ -58,19 +48,19 @@ def test_excess_cold_callers_are_shed_at_once_while_warm_reads_and_health_stay_f
                message="every silent topic discovered")
     poll_until(lambda: gw.get(f"/components/{host}/data{WARM}").json()["x-medkit"]["status"] == "data",
                30, message="warm topic has data")
-    rss_before = memory(gw.pid)
+    rss_before = load.memory(gw.pid)
 
     cold: list = []
-    warm_load = Load(gw.port, lambda rng: Req("warm", "GET", base + WARM), 2, inspect=sample_info)
-    with HealthProbe(gw.port, interval=0.05) as probe:
+    warm_load = load.Load(gw.port, lambda rng: load.Req("warm", "GET", base + WARM), 2, inspect=sample_info)
+    with load.HealthProbe(gw.port, interval=0.05) as probe:
         warm_load.start()
         for round_no in range(ROUNDS):
             barrier = threading.Barrier(CALLERS)
 
             def caller(topic: str, barrier: threading.Barrier, kind: str) -> None:
-                client = Client(gw.port)
+                client = load.Client(gw.port)
                 barrier.wait(10)
-                cold.append(call(client, Req(kind, "GET", base + topic), sample_info))
+                cold.append(load.call(client, load.Req(kind, "GET", base + topic), sample_info))
                 client.close()
 
             threads = [threading.Thread(target=caller, args=(t, barrier, f"round{round_no}"), daemon=True)
@@ -84,8 +74,8 @@ def test_excess_cold_callers_are_shed_at_once_while_warm_reads_and_health_stay_f
                        10, message="cold waiters released")
         warm_load.stop()
         warm = warm_load.join(30)
-    rss_after = memory(gw.pid)
-    record("cold-wait storm", cold + warm, probe=probe, restarts=restarts_in(gw.output),
+    rss_after = load.memory(gw.pid)
+    load.record("cold-wait storm", cold + warm, probe=probe, restarts=load.restarts_in(gw.output),
            rss_before=rss_before, rss_after=rss_after,
            note=f"{ROUNDS} rounds x {CALLERS} cold callers, cap {CAP}, {len(warm)} warm reads")
 
@@ -116,7 +106,7 @@ def test_excess_cold_callers_are_shed_at_once_while_warm_reads_and_health_stay_f
     assert probe.samples and all(s[2] == 200 for s in probe.samples)
     assert probe.worst_ms() < SAMPLE_TIMEOUT * 800
     assert probe.max_of("x-medkit-data-provider", "concurrent_cold_waits") <= CAP
-    assert restarts_in(gw.output) == 0
+    assert load.restarts_in(gw.output) == 0
 
 
 def test_a_shed_read_leaves_the_pool_as_it_was(gateways, nodes):

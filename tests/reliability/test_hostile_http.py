@@ -31,21 +31,11 @@ from hypothesis import strategies as st
 from common.harness.gateway import Gateway
 from common.harness.procs import poll_until
 from ipc.client import RosWorkerClient
-from tests.reliability.load import (
-    Answer,
-    Client,
-    error_key,
-    gateway_procs,
-    memory,
-    problem,
-    raw_exchange,
-    record,
-    scaled,
-)
+from tests.reliability import load
 from tests.support.rospub import RosNode
 
-FUZZ_CASES = scaled(500, 5000)
-BODY_CASES = scaled(300, 3000)
+FUZZ_CASES = load.scaled(500, 5000)
+BODY_CASES = load.scaled(300, 3000)
 LIMIT = 65536  # --max-body-bytes of the gateway under attack
 SINK = "/hostile/sink"
 
@@ -75,7 +65,7 @@ def identity(gw) -> tuple[int, tuple[int, ...]]:
         pid = client.call("ping", timeout=5)["pid"]
     finally:
         client.close()
-    return pid, tuple(sorted(p.pid for p in gateway_procs(gw.pid).http))
+    return pid, tuple(sorted(p.pid for p in load.gateway_procs(gw.pid).http))
 
 
 def unharmed(gw, before: tuple[int, tuple[int, ...]], log_from: int) -> None:
@@ -114,7 +104,7 @@ def test_schemathesis_against_the_openapi_document(target):
     checks = [status_code_conformance, content_type_conformance, response_schema_conformance,
               response_headers_conformance, negative_data_rejection]
     session = requests.Session()
-    answers: list[Answer] = []
+    answers: list[load.Answer] = []
     failures: list[str] = []
 
     @settings(max_examples=FUZZ_CASES, deadline=None, database=None, phases=[Phase.generate],
@@ -125,15 +115,15 @@ def test_schemathesis_against_the_openapi_document(target):
         try:
             response = case.call(base_url=gw.api, session=session, timeout=20)
         except requests.RequestException as exc:
-            answers.append(Answer("fuzz", case.path, started, time.monotonic() - started,
+            answers.append(load.Answer("fuzz", case.path, started, time.monotonic() - started,
                                   type(exc).__name__, type(exc).__name__, None))
             failures.append(f"{case.method} {case.path}: {exc!r}")
             return
         headers = {k.lower(): (v[0] if isinstance(v, list) else v) for k, v in response.headers.items()}
         body = response.content or b""
-        wrong = problem(response.status_code, headers, body) if case.method != "HEAD" else None
-        answers.append(Answer("fuzz", case.path, started, time.monotonic() - started,
-                              response.status_code, error_key(response.status_code, body), wrong))
+        wrong = load.problem(response.status_code, headers, body) if case.method != "HEAD" else None
+        answers.append(load.Answer("fuzz", case.path, started, time.monotonic() - started,
+                              response.status_code, load.error_key(response.status_code, body), wrong))
         if wrong:
             failures.append(f"{case.method} {case.formatted_path}: {wrong}")
         try:
@@ -145,7 +135,7 @@ def test_schemathesis_against_the_openapi_document(target):
 
     fuzz()
     session.close()
-    record("hostile HTTP: schemathesis", answers, restarts=0 if identity(gw) == before else None,
+    load.record("hostile HTTP: schemathesis", answers, restarts=0 if identity(gw) == before else None,
            note=f"{len(answers)} generated cases from /api/v1/docs")
     assert not failures, f"{len(failures)} failures, e.g.:\n" + "\n".join(failures[:10])
     unharmed(gw, before, log_from)
@@ -186,7 +176,7 @@ def test_fuzzed_publish_bodies_reach_the_ros_worker_and_never_hurt_it(target):
     before, log_from = identity(gw), len(gw.output)
     path = f"{gw.api}/components/{host}/data/hostile/fuzzed"
     session = requests.Session()
-    answers: list[Answer] = []
+    answers: list[load.Answer] = []
     failures: list[str] = []
 
     @settings(max_examples=BODY_CASES, deadline=None, database=None, phases=[Phase.generate],
@@ -197,15 +187,15 @@ def test_fuzzed_publish_bodies_reach_the_ros_worker_and_never_hurt_it(target):
         raw = json.dumps(body).encode()
         r = session.put(path, data=raw, headers={"Content-Type": "application/json"}, timeout=20)
         headers = {k.lower(): v for k, v in r.headers.items()}
-        wrong = problem(r.status_code, headers, r.content)
-        answers.append(Answer("body", path, started, time.monotonic() - started, r.status_code,
-                              error_key(r.status_code, r.content), wrong))
+        wrong = load.problem(r.status_code, headers, r.content)
+        answers.append(load.Answer("body", path, started, time.monotonic() - started, r.status_code,
+                              load.error_key(r.status_code, r.content), wrong))
         if wrong or r.status_code not in (200, 400, 413):
             failures.append(f"{raw[:200]!r}: {r.status_code} {wrong or r.text[:200]}")
 
     fuzz()
     session.close()
-    record("hostile HTTP: PUT bodies", answers, note="random data for installed message types")
+    load.record("hostile HTTP: PUT bodies", answers, note="random data for installed message types")
     assert not failures, f"{len(failures)} failures, e.g.:\n" + "\n".join(failures[:10])
     assert any(a.status == 200 for a in answers) and any(a.status == 400 for a in answers)
     unharmed(gw, before, log_from)
@@ -385,12 +375,12 @@ def hand_made_cases(host: str) -> list[tuple[str, bytes, set[int], str]]:
 def test_hand_made_hostile_requests(target):
     gw, host = target
     before, log_from = identity(gw), len(gw.output)
-    rss_before = memory(gw.pid)
+    rss_before = load.memory(gw.pid)
     failures, statuses = [], collections.Counter()
     worst = 0.0
     for name, raw, expected, origin in hand_made_cases(host):
         started = time.monotonic()
-        status, answer = raw_exchange(gw.port, raw, timeout=20)
+        status, answer = load.raw_exchange(gw.port, raw, timeout=20)
         worst = max(worst, time.monotonic() - started)
         statuses[str(status)] += 1
         headers, body = parse_answer(answer)
@@ -398,7 +388,7 @@ def test_hand_made_hostile_requests(target):
             if status not in expected:
                 failures.append(f"{name}: {status} (expected {sorted(expected)}): {body[:200]!r}")
                 continue
-            wrong = problem(status, headers, body)
+            wrong = load.problem(status, headers, body)
             if wrong:
                 failures.append(f"{name}: {wrong}")
         else:  # gunicorn's own answer, or none: never a 5xx (but 505 when asked for), never a hang
@@ -410,9 +400,9 @@ def test_hand_made_hostile_requests(target):
             failures.append(f"{name}: answered with Set-Cookie {headers['set-cookie']!r}")
         if b"root:" in body:
             failures.append(f"{name}: the answer looks like /etc/passwd")
-    record("hostile HTTP: hand-made", requests=sum(statuses.values()), statuses=dict(statuses),
+    load.record("hostile HTTP: hand-made", requests=sum(statuses.values()), statuses=dict(statuses),
            worst_ms=worst * 1000, restarts=0 if identity(gw) == before else None,
-           rss_before=rss_before, rss_after=memory(gw.pid),
+           rss_before=rss_before, rss_after=load.memory(gw.pid),
            note="traversal, NUL, overlong, encodings, malformed HTTP, bodies, types")
     assert not failures, f"{len(failures)} hostile requests were mishandled:\n" + "\n".join(failures)
     unharmed(gw, before, log_from)
@@ -455,7 +445,7 @@ def test_every_json_body_route_refuses_bad_bodies_alike(target, route):
     log_from = len(gw.output)
 
     def send(body: bytes, headers: dict[str, str]) -> tuple[int | None, dict[str, str], bytes]:
-        status, answer = raw_exchange(gw.port, http_request(method, path, body, headers), timeout=20)
+        status, answer = load.raw_exchange(gw.port, http_request(method, path, body, headers), timeout=20)
         return (status, *parse_answer(answer))
 
     json_type = {"Content-Type": "application/json"}
@@ -480,7 +470,7 @@ def test_every_json_body_route_refuses_bad_bodies_alike(target, route):
     wrong = []
     for name, (body, headers, expected) in cases.items():
         status, headers_in, payload = send(body, headers)
-        if status != expected or problem(status, headers_in, payload):
+        if status != expected or load.problem(status, headers_in, payload):
             wrong.append(f"{name}: {status} (expected {expected}) {payload[:160]!r}")
         elif expected == 415 and json.loads(payload)["error_code"] != "invalid-request":
             wrong.append(f"{name}: 415 with {payload[:160]!r}")
@@ -507,7 +497,7 @@ def slow_clients(port: int, count: int) -> list[socket.socket]:
 def health_answers(port: int, attempts: int = 3, timeout: float = 3.0) -> list[int | str]:
     out = []
     for _ in range(attempts):
-        client = Client(port, timeout=timeout)
+        client = load.Client(port, timeout=timeout)
         try:
             out.append(client.request("GET", "/api/v1/health")[0])
         except OSError as exc:
@@ -528,7 +518,7 @@ def health_while_held(port: int, socks: list[socket.socket], attempts: int) -> l
 
 
 def all_healthy(scenario: str, answers: list[int | str], note: str) -> None:
-    record(scenario, requests=len(answers), statuses=dict(collections.Counter(str(a) for a in answers)), note=note)
+    load.record(scenario, requests=len(answers), statuses=dict(collections.Counter(str(a) for a in answers)), note=note)
     assert answers == [200] * len(answers), answers
 
 
@@ -573,7 +563,7 @@ def test_pipelined_requests_all_get_answers(target):
     before, log_from = identity(gw), len(gw.output)
     pipelined = b"".join(http_request("GET", "/api/v1/health", headers={"Connection": "keep-alive"})
                          for _ in range(99)) + http_request("GET", "/api/v1/version-info")
-    status, answer = raw_exchange(gw.port, pipelined, timeout=20)
+    status, answer = load.raw_exchange(gw.port, pipelined, timeout=20)
     assert status == 200 and answer.count(b"HTTP/1.1 200 ") == 100, answer.count(b"HTTP/1.1 ")
-    record("pipelined requests", requests=100, statuses={"200": 100}, note="100 requests in one write")
+    load.record("pipelined requests", requests=100, statuses={"200": 100}, note="100 requests in one write")
     unharmed(gw, before, log_from)

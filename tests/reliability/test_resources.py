@@ -17,22 +17,12 @@ import threading
 from common.harness.procs import poll_until
 from ipc.client import RosWorkerClient
 from ipc.errors import IpcError
-from tests.reliability.load import (
-    HealthProbe,
-    Load,
-    Req,
-    fds,
-    gateway_procs,
-    record,
-    restarts_in,
-    rss_mb,
-    scaled,
-)
+from tests.reliability import load
 from tests.support.rospub import RosNode
 from tests.support.rosworker import call_once
 
-REQUESTS = scaled(5_000, 100_000)
-WARMUP = scaled(1_000, 5_000)
+REQUESTS = load.scaled(5_000, 100_000)
+WARMUP = load.scaled(1_000, 5_000)
 CLIENTS = 16
 POOL, PUBLISHERS = 8, 4
 READ = [f"/resources/live{i}" for i in range(16)]
@@ -43,24 +33,24 @@ RSS_BOUND_MB = 40   # generous: the goal is < 10 MB, reported in the figures
 def plan_for(host: str):
     base = f"/api/v1/components/{host}"
 
-    def plan(rng) -> Req:
+    def plan(rng) -> load.Req:
         r = rng.random()
         if r < 0.45:
-            return Req("read", "GET", f"{base}/data{rng.choice(READ)}")
+            return load.Req("read", "GET", f"{base}/data{rng.choice(READ)}")
         if r < 0.65:
             body = json.dumps({"type": "std_msgs/msg/String",
                                "data": {"data": "x" * rng.randrange(1, 2000)}}).encode()
-            return Req("write", "PUT", f"{base}/data{rng.choice(WRITE)}", body,
+            return load.Req("write", "PUT", f"{base}/data{rng.choice(WRITE)}", body,
                        {"Content-Type": "application/json"})
         if r < 0.75:
-            return Req("nonexistent", "GET", f"{base}/data/resources/nope{rng.randrange(10**6)}")
+            return load.Req("nonexistent", "GET", f"{base}/data/resources/nope{rng.randrange(10**6)}")
         if r < 0.85:
-            return Req("listing", "GET", rng.choice(["/api/v1/apps", "/api/v1/functions",
+            return load.Req("listing", "GET", rng.choice(["/api/v1/apps", "/api/v1/functions",
                                                      "/api/v1/apps/res_pubs/data", f"{base}/data"]))
         if r < 0.92:
-            return Req("error", "GET", rng.choice(["/api/v1/apps/nobody", "/api/v1/apps/%00",
+            return load.Req("error", "GET", rng.choice(["/api/v1/apps/nobody", "/api/v1/apps/%00",
                                                    f"{base}/data/1bad"]))
-        return Req("health", "GET", "/api/v1/health")
+        return load.Req("health", "GET", "/api/v1/health")
 
     return plan
 
@@ -91,9 +81,9 @@ class CapWatch(threading.Thread):
 
 
 def snapshot(pid: int) -> dict:
-    procs = gateway_procs(pid)
-    return {"rosworker": (procs.rosworker.pid, rss_mb(procs.rosworker), fds(procs.rosworker)),
-            "http": {p.pid: (rss_mb(p), fds(p)) for p in procs.http}}
+    procs = load.gateway_procs(pid)
+    return {"rosworker": (procs.rosworker.pid, load.rss_mb(procs.rosworker), load.fds(procs.rosworker)),
+            "http": {p.pid: (load.rss_mb(p), load.fds(p)) for p in procs.http}}
 
 
 def test_memory_descriptors_and_caps_hold_over_many_mixed_requests(gateways, nodes):
@@ -110,18 +100,18 @@ def test_memory_descriptors_and_caps_hold_over_many_mixed_requests(gateways, nod
 
     # Warm-up on a new connection per request, so that every HTTP worker (and each of its threads,
     # which opens its own socket to the ROS worker) has served before the baseline is taken.
-    def fresh(rng) -> Req:
+    def fresh(rng) -> load.Req:
         req = plan(rng)
         req.headers = {**(req.headers or {}), "Connection": "close"}
         return req
 
-    Load(gw.port, fresh, CLIENTS, total=WARMUP, seed=100).run(120)
+    load.Load(gw.port, fresh, CLIENTS, total=WARMUP, seed=100).run(120)
     before = snapshot(gw.pid)
     churn_before = call_once(gw.runtime_dir, "stats")["details"]
     watch = CapWatch(gw.runtime_dir)
     watch.start()
-    with HealthProbe(gw.port, interval=0.2) as probe:
-        answers = Load(gw.port, plan, CLIENTS, total=REQUESTS, seed=1).run(scaled(300, 3600))
+    with load.HealthProbe(gw.port, interval=0.2) as probe:
+        answers = load.Load(gw.port, plan, CLIENTS, total=REQUESTS, seed=1).run(load.scaled(300, 3600))
     watch.stop()
     churn = call_once(gw.runtime_dir, "stats")["details"]
     poll_until(lambda: (h := gw.get("/health").json())["x-medkit-data-provider"]["concurrent_cold_waits"] == 0
@@ -135,7 +125,7 @@ def test_memory_descriptors_and_caps_hold_over_many_mixed_requests(gateways, nod
     pubs = churn["publishes_total"] - churn_before["publishes_total"]
     http_fds = ", ".join(f"{before['http'][p][1]}→{after['http'][p][1]}" for p in http_growth)
     http_mb = ", ".join(f"{g:+.1f}" for g in http_growth.values())
-    record("resource bounds", answers, probe=probe, restarts=restarts_in(gw.output),
+    load.record("resource bounds", answers, probe=probe, restarts=load.restarts_in(gw.output),
            rss_before={"rosworker": before["rosworker"][1],
                        "http_max": max(r for r, _ in before["http"].values())},
            rss_after={"rosworker": after["rosworker"][1],
@@ -153,7 +143,7 @@ def test_memory_descriptors_and_caps_hold_over_many_mixed_requests(gateways, nod
     assert writes and sum(a.key == "200" for a in writes) > 0.9 * len(writes), \
         {a.key for a in writes}
     # Nothing restarted, so the before/after figures compare the same processes.
-    assert after["rosworker"][0] == before["rosworker"][0] and restarts_in(gw.output) == 0
+    assert after["rosworker"][0] == before["rosworker"][0] and load.restarts_in(gw.output) == 0
     assert set(after["http"]) == set(before["http"])
     # Caps held all along.
     assert watch.max_publishers <= PUBLISHERS and watch.max_publishers > 0

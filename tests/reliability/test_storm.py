@@ -18,20 +18,11 @@ import collections
 import json
 
 from common.harness.procs import poll_until
-from tests.reliability.load import (
-    HealthProbe,
-    Load,
-    Req,
-    gateway_procs,
-    memory,
-    record,
-    restarts_in,
-    scaled,
-)
+from tests.reliability import load
 from tests.support.rospub import RosNode
 
-CLIENTS = scaled(32, 64)
-DURATION = scaled(15, 60)
+CLIENTS = load.scaled(32, 64)
+DURATION = load.scaled(15, 60)
 POOL = 8
 WARM = [f"/storm/warm{i}" for i in range(4)]
 COLD = [f"/storm/cold{i}" for i in range(10)]
@@ -63,14 +54,14 @@ def plan_for(host: str):
     kinds = [k for k, _ in weights]
     cum = [w for _, w in weights]
 
-    def plan(rng) -> Req:
+    def plan(rng) -> load.Req:
         kind = rng.choices(kinds, cum)[0]
         if kind in reads:
-            return Req(kind, "GET", f"{base}/data{rng.choice(reads[kind])}")
+            return load.Req(kind, "GET", f"{base}/data{rng.choice(reads[kind])}")
         if kind == "nonexistent":
-            return Req(kind, "GET", f"{base}/data/storm/nope_{rng.randrange(10**6)}")
+            return load.Req(kind, "GET", f"{base}/data/storm/nope_{rng.randrange(10**6)}")
         name, path = rng.choice(fixed)
-        return Req(name, "GET", path)
+        return load.Req(name, "GET", path)
 
     return plan
 
@@ -90,15 +81,15 @@ def test_storm_of_mixed_requests(gateways, nodes):
                    30, interval=0.1, message=f"data on {topic}")
     poll_until(lambda: {"storm_pubs", "storm_silent"} <= {a["id"] for a in gw.get("/apps").json()["items"]},
                30, message="storm nodes listed")
-    worker_before = gateway_procs(gw.pid).rosworker.pid
-    rss_before = memory(gw.pid)
+    worker_before = load.gateway_procs(gw.pid).rosworker.pid
+    rss_before = load.memory(gw.pid)
 
-    with HealthProbe(gw.port) as probe:
-        answers = Load(gw.port, plan_for(host), CLIENTS, duration=DURATION, inspect=data_status).run(60)
-    rss_after = memory(gw.pid)
+    with load.HealthProbe(gw.port) as probe:
+        answers = load.Load(gw.port, plan_for(host), CLIENTS, duration=DURATION, inspect=data_status).run(60)
+    rss_after = load.memory(gw.pid)
 
     by_kind = collections.Counter((a.kind, a.key) for a in answers)
-    record("storm", answers, probe=probe, restarts=restarts_in(gw.output), rss_before=rss_before,
+    load.record("storm", answers, probe=probe, restarts=load.restarts_in(gw.output), rss_before=rss_before,
            rss_after=rss_after, note=f"{CLIENTS} clients, {DURATION} s, pool cap {POOL}")
     print("\nstorm answers by kind:", dict(sorted(by_kind.items())))
 
@@ -113,8 +104,8 @@ def test_storm_of_mixed_requests(gateways, nodes):
     assert all(a.key == "200" for a in answers if a.kind in ("unpublished", "nonexistent"))
     # No crash: same ROS worker, the supervisor restarted nothing, gateway alive.
     assert gw.proc.poll() is None
-    assert gateway_procs(gw.pid).rosworker.pid == worker_before
-    assert restarts_in(gw.output) == 0
+    assert load.gateway_procs(gw.pid).rosworker.pid == worker_before
+    assert load.restarts_in(gw.output) == 0
     # /health kept answering throughout (hang catcher only; its p99 is in the figures).
     assert probe.samples and all(s[2] == 200 for s in probe.samples), \
         collections.Counter(s[2] for s in probe.samples)

@@ -32,14 +32,8 @@ SLOW = {"node": "slowsvc", "namespace": "/wake",
 
 
 @pytest.fixture(scope="module")
-def slow():
-    node = OpsNode(SLOW)
-    yield node
-    node.stop()
-
-
-@pytest.fixture(scope="module")
-def gw(slow, gateway):
+def gw(request, gateway):
+    request.addfinalizer(OpsNode(SLOW).stop)   # the slow service's node, for the module
     gw = gateway("--workers", "1", "--api-token", TOKEN, "--allow-operations", "--service-call-timeout", "10",
                  "--sample-timeout", "8",
                  "--max-operation-clients", "1")  # two services called in turn: a client made and dropped each time
