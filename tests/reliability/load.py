@@ -51,6 +51,7 @@ ERROR_CODES = {
     "internal-error", "not-implemented", "service-unavailable", "not-responding", "vendor-error",
     "unauthorized", "forbidden", "payload-too-large", "rate-limit-exceeded",
     "operation-not-found", "precondition-not-fulfilled",  # operations (medkit's codes)
+    "lock-broken",  # a write to an entity another client holds the lock of (medkit's code)
 }
 # vendor_code -> the HTTP status it travels with (ipc/errors.py, as medkit sends them)
 VENDOR_CODES = {
@@ -82,7 +83,7 @@ def problem(status: int, headers: dict[str, str], body: bytes, *,
             allow: Iterable[int] = ()) -> str | None:
     """What breaks the contract in this answer, or None.
 
-    200 and every 4xx are fine when the body is JSON (errors: a known
+    2xx and every 4xx are fine when the body is JSON (errors: a known
     ``error_code`` and a ``message``).  5xx are fine only as documented
     errors: 503 ``vendor-error`` with a known ``vendor_code`` and a
     ``Retry-After``, 502 ``x-medkit-message-undecodable``, 504 ``not-responding``,
@@ -98,8 +99,8 @@ def problem(status: int, headers: dict[str, str], body: bytes, *,
         doc = json.loads(body)
     except ValueError:
         return f"{status} with a body that is not JSON: {body[:80]!r}"
-    if status == 200:
-        return None if isinstance(doc, dict) else f"200 with a {type(doc).__name__} body"
+    if 200 <= status < 300:  # 200, and 201/202/207 of the writes (a lock, a goal, a reset)
+        return None if isinstance(doc, dict) else f"{status} with a {type(doc).__name__} body"
     if not isinstance(doc, dict) or doc.get("error_code") not in ERROR_CODES \
             or not isinstance(doc.get("message"), str):
         return f"{status} with an error body outside the contract: {body[:160]!r}"

@@ -23,7 +23,8 @@ CASES = {"floor8", "floor1", "warm8", "warm1", "echo8", "echo1", "hop1", "inside
          "faults_cpu", "faults_confirm",  # faults (issue 22): bench/faults.py
          "fleet_faults", "fleet_hung", "fleet_fault_stream", "fleet_memory", "fleet_idle",  # bench/fleet.py
          "auth", "write_checks",  # a JWT on every warm sample, a write's lock check and audit (issue 31): bench/auth.py
-         "rosbag_cpu", "rosbag_write_sample", "rosbag_download"}  # recordings of faults (issue 32): bench/bulk_data.py
+         "rosbag_cpu", "rosbag_write_sample", "rosbag_download",  # recordings of faults (issue 32): bench/bulk_data.py
+         "wake_idle", "triggers", "triggers_shared"}  # the ROS worker wakes on events (issue 33): bench/wakeups.py
 
 
 @pytest.mark.timeout(420)
