@@ -133,6 +133,7 @@ class FaultManager:
         self.arrays = 0
         self.refused = 0
         self._drained = time.monotonic()  # the last moment the subscription's queue was seen empty
+        self._flushed = False             # the last check wrote faults whose times changed
         # faults as an observable collection (triggers; core/notifier.py): told of every fault event
         self.observable = FaultObservable(stats)
         self.events = FaultEvents(executor, store, send, self.observable)
@@ -208,11 +209,14 @@ class FaultManager:
         self.executor.call_later(self._next_tick(now), self._tick_round)
 
     def _next_tick(self, now: float) -> float:
-        """Seconds to the next check: the first confirmation or staleness that can come, within
+        """Seconds to the next check: the first confirmation, staleness or due write that can come, within
         [``TICK_EVERY``, ``TICK_IDLE``] (a quiet robot's gateway wakes once a second for its faults)."""
-        if any(record["status"] == PREFAILED for record in self.faults.values()):
+        if any(record["status"] == PREFAILED for record in self.faults.values()) or self._flushed:
+            self._flushed = False  # written just now: /health shows the store caught up at the next check
             return TICK_EVERY
         first = now + TICK_IDLE
+        for code in self._unwritten:  # a fault whose times changed is written PERSIST_EVERY after its last write
+            first = min(first, self._dirty.get(code, 0.0) + PERSIST_EVERY)
         if self.stale_s:
             first = min(first, now + self.stale_s / 4)  # a status first seen after this check
             for seen in self.seen.values():
@@ -401,6 +405,7 @@ class FaultManager:
         for code in list(self._unwritten):
             if code in self.faults and (force or now - self._dirty.get(code, 0.0) >= PERSIST_EVERY):
                 self._write(code, changed=False)
+                self._flushed = True
             elif code not in self.faults:
                 self._unwritten.discard(code)
 
