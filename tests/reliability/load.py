@@ -91,6 +91,8 @@ def problem(status: int, headers: dict[str, str], body: bytes, *,
     a problem unless ``allow`` lists it.
     """
     ctype = headers.get("content-type", "")
+    if status == 200 and ctype.startswith("text/event-stream"):  # a stream (faults, triggers, subscriptions)
+        return None
     if status == 204:  # no content: no body to check (whatever type the framework names)
         return None if not body else f"204 with a body: {body[:80]!r}"
     if not ctype.startswith("application/json"):
