@@ -13,7 +13,6 @@ import pytest
 
 from ipc.errors import IpcError
 from rosworker.core.samplers import SamplerRegistry
-from rosworker.core.task import Timer
 from rosworker.operations import feed as feed_mod
 from rosworker.operations.feed import ExecutionFeed
 from rosworker.subscriptions.registry import _target
